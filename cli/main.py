@@ -1,0 +1,80 @@
+"""`demo`: the command-line entry point. Each subcommand lives in its own module and only parses
+flags and calls a library function; errors become one line on stderr."""
+
+from __future__ import annotations
+
+import os
+import sys
+import traceback
+
+import typer
+
+from demo import __version__
+from demo.cli.output import err_console
+from demo.errors import DemoError
+
+app = typer.Typer(
+    name="demo",
+    help="Robot learning from demonstration in MuJoCo: collect, curate, convert, train, eval.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+_DEBUG = False
+
+
+def _version(value: bool) -> None:
+    if value:
+        print(f"demo {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+    debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors."),
+) -> None:
+    global _DEBUG
+    _DEBUG = debug or bool(os.environ.get("DEMO_DEBUG"))
+
+
+def _register() -> None:
+    # Imported here so `demo --help` stays one import deep per subcommand module.
+    from demo.cli import commands  # noqa: F401
+
+
+def main(argv: list[str] | None = None) -> int:
+    _register()
+    try:
+        rc = app(args=argv, standalone_mode=False)
+    except DemoError as exc:
+        if _DEBUG:
+            traceback.print_exc()
+        err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        err_console.print("[bold red]interrupted[/] (finished episodes are kept)")
+        return 130
+    except SystemExit as exc:  # typer.Exit inside commands
+        return int(exc.code or 0)
+    except Exception as exc:  # click usage errors and the unexpected
+        import click
+
+        if isinstance(exc, click.exceptions.Exit):
+            return exc.exit_code
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            return exc.exit_code
+        if isinstance(exc, click.exceptions.Abort):
+            err_console.print("[bold red]aborted[/]")
+            return 130
+        if _DEBUG:
+            traceback.print_exc()
+        err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc} (run with --debug for the traceback)")
+        return 1
+    return rc if isinstance(rc, int) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,493 @@
+"""The episode store: the one dataset abstraction that every stage of `demo` reads and writes.
+
+A store is a directory::
+
+    pick.zarr/
+      zarr.json            zarr v3 root group; attributes["demo"] = StoreMeta (format, fps, ...)
+      data/<key>/          one array per feature, all episodes concatenated along time (axis 0)
+      meta/episode_ends/   int64 cumulative end index per episode (Diffusion Policy ReplayBuffer)
+      episodes.parquet     the episode table (see demo.store.episode_table): the commit record
+
+Appending is atomic per episode. The frames are written first (zarr writes each chunk to a
+temporary file and renames it, so a chunk holding committed frames is always either its old or its
+new version), then ``meta/episode_ends``, and last the episode table, renamed into place: that
+rename is the commit. Frames beyond the table's last episode belong to an append that never
+committed; readers ignore them and the next writer trims them. A crash or SIGKILL at any point
+therefore leaves every finished episode readable.
+
+One process writes at a time (an advisory ``flock`` on ``.lock``); parallel collectors send
+finished episodes to a single writer (see demo.collect).
+"""
+
+from __future__ import annotations
+
+import fcntl
+
+import os
+import shutil
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import zarr
+
+from demo.errors import DemoError
+from demo.store import episode_table
+from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
+
+TABLE_FILE = "episodes.parquet"
+LOCK_FILE = ".lock"
+CHUNK_BYTES = 256 * 1024
+EpisodeSelection = None | str | Sequence[int] | np.ndarray
+
+
+def _chunk_rows(frame_shape: tuple[int, ...], dtype: np.dtype) -> int:
+    frame_bytes = max(1, int(np.prod(frame_shape, dtype=np.int64)) * dtype.itemsize)
+    return int(np.clip(CHUNK_BYTES // frame_bytes, 16, 16384))
+
+
+class EpisodeStore:
+    """A directory of episodes. Open with :meth:`create` or :meth:`open`; use as a context manager."""
+
+    def __init__(self, path: Path, root: zarr.Group, meta: StoreMeta, table: pa.Table, writable: bool):
+        self.path = path
+        self._root = root
+        self.meta = meta
+        self._table = table
+        self.writable = writable
+        self._lock_fd: int | None = None
+        self._arrays: dict[str, zarr.Array] = {}
+
+    # ------------------------------------------------------------------ opening and creating
+    @classmethod
+    def create(
+        cls,
+        path: str | Path,
+        meta: StoreMeta,
+        *,
+        overwrite: bool = False,
+    ) -> "EpisodeStore":
+        """Create an empty store at ``path`` (refuses to replace an existing one unless ``overwrite``)."""
+        path = Path(path)
+        if path.exists() and any(path.iterdir()):
+            if not overwrite:
+                raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
+            if not (path / "zarr.json").exists() and not (path / TABLE_FILE).exists():
+                raise DemoError(path, "exists and is not a demo store; refusing to overwrite it")
+            shutil.rmtree(path)
+        path.mkdir(parents=True, exist_ok=True)
+        root = zarr.open_group(str(path), mode="w", zarr_format=3)
+        root.attrs["demo"] = meta.to_json()
+        data = root.create_group("data")
+        for key, spec in meta.features.items():
+            rows = _chunk_rows(spec.shape, spec.np_dtype)
+            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype)
+        root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64")
+        episode_table.write_atomic(episode_table.empty_table(), path / TABLE_FILE)
+        store = cls(path, root, meta, episode_table.empty_table(), writable=True)
+        store._acquire_lock()
+        return store
+
+    @classmethod
+    def open(cls, path: str | Path, mode: str = "r") -> "EpisodeStore":
+        """Open an existing store, ``mode="r"`` to read or ``"a"`` to append and edit."""
+        if mode not in ("r", "a"):
+            raise ValueError(f"mode must be 'r' or 'a', not {mode!r}")
+        path = Path(path)
+        if not path.exists():
+            raise DemoError(path, "no such store")
+        if not path.is_dir() or not (path / "zarr.json").is_file():
+            raise DemoError(path, "not a demo episode store (no zarr.json in a directory)")
+        try:
+            root = zarr.open_group(str(path), mode="r+" if mode == "a" else "r", zarr_format=3)
+            attrs = dict(root.attrs)
+        except Exception as exc:  # zarr raises several types for unreadable metadata
+            raise DemoError(path / "zarr.json", f"unreadable zarr metadata ({_first_line(exc)})") from None
+        raw = attrs.get("demo")
+        if not isinstance(raw, dict) or raw.get("format") != FORMAT_NAME:
+            raise DemoError(path, f"not a demo episode store (root attribute 'demo.format' is not {FORMAT_NAME!r})")
+        if raw.get("schema_version") != SCHEMA_VERSION:
+            raise DemoError(
+                path, f"schema version {raw.get('schema_version')!r} is not supported (this demo reads {SCHEMA_VERSION})"
+            )
+        try:
+            meta = StoreMeta.from_json(raw)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DemoError(path / "zarr.json", f"malformed store metadata ({_first_line(exc)})") from None
+        table = episode_table.read(path / TABLE_FILE)
+        store = cls(path, root, meta, table, writable=(mode == "a"))
+        if mode == "a":
+            store._acquire_lock()
+        store._check_consistency()
+        return store
+
+    def _acquire_lock(self) -> None:
+        fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise DemoError(self.path, "is being written by another process") from None
+        self._lock_fd = fd
+
+    def close(self) -> None:
+        if self._lock_fd is not None:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def __enter__(self) -> "EpisodeStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # ------------------------------------------------------------------ structure
+    def array(self, key: str) -> zarr.Array:
+        if key not in self.meta.features:
+            raise DemoError(self.path, f"has no feature {key!r} (features: {', '.join(self.meta.features)})")
+        if key not in self._arrays:
+            try:
+                self._arrays[key] = self._root["data"][key]
+            except KeyError:
+                raise DemoError(self.path / "data" / key, "array is missing") from None
+        return self._arrays[key]
+
+    def _ends_array(self) -> zarr.Array:
+        try:
+            return self._root["meta"]["episode_ends"]
+        except KeyError:
+            raise DemoError(self.path / "meta" / "episode_ends", "array is missing") from None
+
+    def _check_consistency(self) -> None:
+        lengths = self._table.column("length").to_numpy()
+        ends = np.cumsum(lengths, dtype=np.int64)
+        if not np.array_equal(self._table.column("episode_index").to_numpy(), np.arange(len(lengths))):
+            raise DemoError(self.path / TABLE_FILE, "episode_index is not 0..N-1")
+        stored_ends = self._ends_array()
+        if stored_ends.shape[0] < len(ends) or not np.array_equal(stored_ends[: len(ends)], ends):
+            raise DemoError(
+                self.path / "meta" / "episode_ends",
+                f"does not match the episode table ({stored_ends.shape[0]} ends for {len(ends)} episodes)",
+            )
+        total = int(ends[-1]) if len(ends) else 0
+        for key in self.meta.features:
+            n = self.array(key).shape[0]
+            if n < total:
+                raise DemoError(self.path / "data" / key, f"is truncated: {n} frames, the episode table needs {total}")
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def num_episodes(self) -> int:
+        return self._table.num_rows
+
+    @property
+    def num_frames(self) -> int:
+        return int(self._table.column("length").to_numpy().sum()) if self.num_episodes else 0
+
+    @property
+    def episode_ends(self) -> np.ndarray:
+        return np.cumsum(self._table.column("length").to_numpy(), dtype=np.int64)
+
+    @property
+    def episode_lengths(self) -> np.ndarray:
+        return self._table.column("length").to_numpy().astype(np.int64)
+
+    @property
+    def table(self) -> pa.Table:
+        """The episode table (read-only view; edit with :meth:`set_column` / :meth:`set_mask`)."""
+        return self._table
+
+    def episode_info(self, index: int) -> dict[str, Any]:
+        self._check_index(index)
+        return {k: v[0] for k, v in self._table.slice(index, 1).to_pydict().items()}
+
+    def column(self, name: str) -> np.ndarray:
+        if name not in self._table.column_names:
+            raise DemoError(self.path / TABLE_FILE, f"has no column {name!r}")
+        return self._table.column(name).to_numpy(zero_copy_only=False)
+
+    def _check_index(self, index: int) -> None:
+        if not 0 <= index < self.num_episodes:
+            raise DemoError(self.path, f"has no episode {index} (it has {self.num_episodes})")
+
+    def _read(self, key: str, start: int, stop: int) -> np.ndarray:
+        try:
+            return np.asarray(self.array(key)[start:stop])
+        except DemoError:
+            raise
+        except Exception as exc:
+            raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({_first_line(exc)})") from None
+
+    def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """All frames of one episode: ``{key: array[length, ...]}``."""
+        self._check_index(index)
+        start = int(self._table.column("start")[index].as_py())
+        stop = start + int(self._table.column("length")[index].as_py())
+        return {k: self._read(k, start, stop) for k in (keys or self.meta.features)}
+
+    def iter_episodes(
+        self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
+    ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+        for index in self.select(episodes):
+            yield int(index), self.read_episode(int(index), keys)
+
+    def load(
+        self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Frames of the selected episodes in memory, concatenated, with their episode ends."""
+        keys = list(keys or self.meta.features)
+        chosen = self.select(episodes)
+        total = self.num_frames
+        if len(chosen) == self.num_episodes:
+            return {k: self._read(k, 0, total) for k in keys}, self.episode_ends
+        starts = self.column("start")[chosen]
+        lengths = self.episode_lengths[chosen]
+        frames = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lengths)]) if len(chosen) else np.zeros(0, int)
+        data = {}
+        for k in keys:
+            full = self._read(k, 0, total)
+            data[k] = full[frames]
+        return data, np.cumsum(lengths, dtype=np.int64)
+
+    def select(self, episodes: EpisodeSelection = None) -> np.ndarray:
+        """Episode indices for ``None`` (all), a mask name, a boolean array or a list of indices."""
+        if episodes is None:
+            return np.arange(self.num_episodes)
+        if isinstance(episodes, str):
+            return np.flatnonzero(self.mask(episodes))
+        arr = np.asarray(episodes)
+        if arr.dtype == bool:
+            if arr.shape != (self.num_episodes,):
+                raise DemoError(self.path, f"episode mask has {arr.size} entries for {self.num_episodes} episodes")
+            return np.flatnonzero(arr)
+        arr = arr.astype(np.int64).reshape(-1)
+        bad = arr[(arr < 0) | (arr >= self.num_episodes)]
+        if bad.size:
+            raise DemoError(self.path, f"has no episode {int(bad[0])} (it has {self.num_episodes})")
+        return arr
+
+    # ------------------------------------------------------------------ masks and per-episode columns
+    def mask_names(self) -> list[str]:
+        p = episode_table.MASK_PREFIX
+        return [c[len(p):] for c in self._table.column_names if c.startswith(p)]
+
+    def mask(self, name: str) -> np.ndarray:
+        column = episode_table.MASK_PREFIX + name
+        if column not in self._table.column_names:
+            raise DemoError(self.path, f"has no mask {name!r} (masks: {', '.join(self.mask_names()) or 'none'})")
+        return self._table.column(column).to_numpy(zero_copy_only=False).astype(bool)
+
+    def set_mask(self, name: str, values: Sequence[bool] | np.ndarray) -> None:
+        values = np.asarray(values, dtype=bool)
+        if values.shape != (self.num_episodes,):
+            raise DemoError(self.path, f"mask {name!r} has {values.size} entries for {self.num_episodes} episodes")
+        self.set_column(episode_table.MASK_PREFIX + name, values)
+
+    def set_column(self, name: str, values: Sequence[Any] | np.ndarray) -> None:
+        """Add or replace a per-episode column (scores, flags, ...); fixed columns are read-only."""
+        self._require_writable()
+        if name in episode_table.FIXED_COLUMNS and name not in ("success", "operator", "source"):
+            raise DemoError(self.path, f"column {name!r} is managed by the store")
+        values = list(values) if not isinstance(values, np.ndarray) else values
+        if len(values) != self.num_episodes:
+            raise DemoError(self.path, f"column {name!r} has {len(values)} values for {self.num_episodes} episodes")
+        table = episode_table.set_column(self._table, name, values)
+        episode_table.write_atomic(table, self.path / TABLE_FILE)
+        self._table = table
+
+    def update_meta(self, **changes: Any) -> None:
+        """Replace root metadata fields (``provenance``, ``extra``, ``task``, ``robot``)."""
+        self._require_writable()
+        for key, value in changes.items():
+            if key not in ("provenance", "extra", "task", "robot"):
+                raise ValueError(f"metadata field {key!r} cannot be changed after creation")
+            setattr(self.meta, key, value)
+        self._root.attrs["demo"] = self.meta.to_json()
+
+    # ------------------------------------------------------------------ writing
+    def _require_writable(self) -> None:
+        if not self.writable:
+            raise DemoError(self.path, "is open read-only")
+
+    def _validate(self, data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], int]:
+        expected = set(self.meta.features)
+        given = set(data)
+        if given != expected:
+            missing, unknown = sorted(expected - given), sorted(given - expected)
+            parts = ([f"missing {', '.join(missing)}"] if missing else []) + (
+                [f"unknown {', '.join(unknown)}"] if unknown else []
+            )
+            raise DemoError(self.path, f"episode keys do not match the store's features: {'; '.join(parts)}")
+        lengths = {k: len(v) for k, v in data.items()}
+        if len(set(lengths.values())) != 1:
+            raise DemoError(self.path, f"episode arrays have mismatched lengths: {lengths}")
+        length = next(iter(lengths.values()))
+        if length == 0:
+            raise DemoError(self.path, "episode is empty")
+        out = {}
+        for key, spec in self.meta.features.items():
+            arr = np.asarray(data[key])
+            if arr.shape[1:] != spec.shape:
+                raise DemoError(self.path, f"{key}: frame shape {arr.shape[1:]} does not match {spec.shape}")
+            if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+                bad = int(np.flatnonzero(~np.isfinite(arr.reshape(length, -1)).all(axis=1))[0])
+                raise DemoError(self.path, f"{key}: non-finite value (NaN or inf) at frame {bad}")
+            if arr.dtype != spec.np_dtype:
+                if not np.can_cast(arr.dtype, spec.np_dtype, casting="same_kind"):
+                    raise DemoError(self.path, f"{key}: dtype {arr.dtype} cannot be stored as {spec.dtype}")
+                arr = arr.astype(spec.np_dtype)
+            out[key] = arr
+        return out, length
+
+    def _trim_uncommitted(self, total: int) -> None:
+        """Drop frames an interrupted append left beyond the committed end."""
+        for key in self.meta.features:
+            arr = self.array(key)
+            if arr.shape[0] != total:
+                arr.resize((total, *arr.shape[1:]))
+        ends = self._ends_array()
+        if ends.shape[0] != self.num_episodes:
+            ends.resize((self.num_episodes,))
+
+    def append_episode(self, data: dict[str, np.ndarray], **info: Any) -> int:
+        """Append one episode atomically and return its index.
+
+        ``data`` maps every feature key to an array ``[length, *shape]``. ``info`` fills the
+        episode table: ``success``, ``seed``, ``source``, ``operator``, ``task`` and any extra
+        scalar columns (``mask.<name>``, ``score.<name>``, ...).
+        """
+        return self.append_episodes([(data, info)])[0]
+
+    def append_episodes(self, episodes: Sequence[tuple[dict[str, np.ndarray], dict[str, Any]]]) -> list[int]:
+        """Append several episodes with one commit (all or none of them become visible)."""
+        self._require_writable()
+        if not episodes:
+            return []
+        checked = [self._validate(data) for data, _ in episodes]
+        total = self.num_frames
+        self._trim_uncommitted(total)
+        new_total = total + sum(n for _, n in checked)
+        for key in self.meta.features:
+            arr = self.array(key)
+            arr.resize((new_total, *arr.shape[1:]))
+            block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
+            arr[total:new_total] = block
+        lengths = [n for _, n in checked]
+        new_ends = total + np.cumsum(lengths, dtype=np.int64)
+        ends = self._ends_array()
+        ends.resize((self.num_episodes + len(checked),))
+        ends[self.num_episodes:] = new_ends
+        table = self._table
+        indices = []
+        start = total
+        for (_, info), length in zip(episodes, lengths):
+            index = table.num_rows
+            row = {
+                "episode_index": index,
+                "start": start,
+                "length": length,
+                "success": bool(info.get("success", False)),
+                "seed": int(info["seed"]) if info.get("seed") is not None else -1,
+                "source": str(info.get("source", "unknown")),
+                "operator": str(info.get("operator", "")),
+                "task": str(info.get("task", (self.meta.task or {}).get("name", ""))),
+                "duration_s": length / self.meta.fps,
+            }
+            row.update({k: v for k, v in info.items() if k not in row})
+            table = episode_table.append_row(table, episode_table.make_row(row))
+            indices.append(index)
+            start += length
+        episode_table.write_atomic(table, self.path / TABLE_FILE)  # the commit
+        self._table = table
+        return indices
+
+    # ------------------------------------------------------------------ copies
+    def copy_to(
+        self,
+        path: str | Path,
+        episodes: EpisodeSelection = None,
+        *,
+        frame_ranges: dict[int, tuple[int, int]] | None = None,
+        provenance: dict[str, Any] | None = None,
+        overwrite: bool = False,
+        meta: StoreMeta | None = None,
+    ) -> "EpisodeStore":
+        """Write the selected episodes (optionally trimmed to ``frame_ranges[i] = (a, b)``) to a new store.
+
+        The source is never modified. Per-episode columns, masks included, travel with their rows.
+        """
+        path = Path(path)
+        if path.resolve() == self.path.resolve():
+            raise DemoError(path, "is the source store; write the copy elsewhere")
+        chosen = self.select(episodes)
+        new_meta = meta or StoreMeta.from_json(self.meta.to_json())
+        record = {"op": "copy", "from": str(self.path), "episodes": int(len(chosen)), "time": _now()}
+        record.update(provenance or {})
+        new_meta.provenance = [*new_meta.provenance, record]
+        out = EpisodeStore.create(path, new_meta, overwrite=overwrite)
+        skip = {"episode_index", "start", "length", "duration_s"}
+        batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
+        for index in chosen:
+            data = self.read_episode(int(index))
+            info = {k: v for k, v in self.episode_info(int(index)).items() if k not in skip}
+            if frame_ranges and int(index) in frame_ranges:
+                a, b = frame_ranges[int(index)]
+                data = {k: v[a:b] for k, v in data.items()}
+                info["trimmed_from"] = f"{int(index)}:{a}:{b}"
+            info["source_episode"] = int(index)
+            batch.append((data, info))
+            if sum(len(d["action"]) for d, _ in batch) > 200_000:
+                out.append_episodes(batch)
+                batch = []
+        out.append_episodes(batch)
+        return out
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict[str, Any]:
+        """What `demo info` shows, as plain JSON-able data."""
+        t = self._table
+        success = t.column("success").to_numpy(zero_copy_only=False) if self.num_episodes else np.zeros(0, bool)
+
+        def counts(col: str) -> dict[str, int]:
+            values, n = np.unique(np.asarray(t.column(col).to_pylist(), dtype=object).astype(str), return_counts=True)
+            return {str(v): int(c) for v, c in zip(values, n)}
+
+        return {
+            "path": str(self.path),
+            "format": self.meta.format,
+            "schema_version": self.meta.schema_version,
+            "episodes": self.num_episodes,
+            "frames": self.num_frames,
+            "fps": self.meta.fps,
+            "task": self.meta.task,
+            "robot": self.meta.robot,
+            "action": self.meta.action.to_json(),
+            "features": {k: v.to_json() for k, v in self.meta.features.items()},
+            "success_rate": float(success.mean()) if len(success) else None,
+            "mean_length": float(self.episode_lengths.mean()) if self.num_episodes else None,
+            "sources": counts("source") if self.num_episodes else {},
+            "operators": counts("operator") if self.num_episodes else {},
+            "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
+            "provenance": self.meta.provenance,
+        }
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0][:200]
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+

@@ -1,0 +1,107 @@
+"""The episode table: one parquet row per episode, rewritten atomically on every change.
+
+Fixed columns (always present):
+
+=============  =======  ===========================================================
+episode_index  int64    0-based, equals the row number
+start          int64    first frame of the episode in the concatenated arrays
+length         int64    frames in the episode
+success        bool     task success predicate at the end of the episode
+seed           int64    seed of the episode's initial state (-1 when unknown)
+source         string   scripted / kinesthetic / vr / dagger / imported / ...
+operator       string   who or what produced it (expert, good, okay, poor, a name)
+task           string   task name
+duration_s     float64  length / fps, in seconds of robot time
+=============  =======  ===========================================================
+
+Any other column is allowed: ``mask.<name>`` (bool) columns are named subsets, like robomimic's
+filter keys; ``score.<name>`` (float64) columns hold curation signals; anything else is free
+per-episode info (for example ``dagger_round``). Rewriting a few thousand rows takes milliseconds.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from demo.errors import DemoError
+
+FIXED_COLUMNS: dict[str, pa.DataType] = {
+    "episode_index": pa.int64(),
+    "start": pa.int64(),
+    "length": pa.int64(),
+    "success": pa.bool_(),
+    "seed": pa.int64(),
+    "source": pa.string(),
+    "operator": pa.string(),
+    "task": pa.string(),
+    "duration_s": pa.float64(),
+}
+MASK_PREFIX = "mask."
+SCORE_PREFIX = "score."
+
+
+def empty_table() -> pa.Table:
+    return pa.table({k: pa.array([], type=t) for k, t in FIXED_COLUMNS.items()})
+
+
+def make_row(info: dict[str, Any]) -> pa.Table:
+    """One-row table from an info dict; fixed columns get their declared types."""
+    columns: dict[str, pa.Array] = {}
+    for key, value in info.items():
+        if key in FIXED_COLUMNS:
+            columns[key] = pa.array([value], type=FIXED_COLUMNS[key])
+        elif key.startswith(MASK_PREFIX):
+            columns[key] = pa.array([bool(value)], type=pa.bool_())
+        elif key.startswith(SCORE_PREFIX):
+            columns[key] = pa.array([float(value)], type=pa.float64())
+        else:
+            if isinstance(value, np.generic):
+                value = value.item()
+            if not isinstance(value, (bool, int, float, str, type(None))):
+                raise DemoError(None, f"episode info {key!r} must be a scalar, got {type(value).__name__}")
+            columns[key] = pa.array([value])
+    return pa.table(columns)
+
+
+def append_row(table: pa.Table, row: pa.Table) -> pa.Table:
+    """Append a row, adding missing columns on either side as nulls (False for masks)."""
+    merged = pa.concat_tables([table, row], promote_options="permissive")
+    for name in merged.column_names:
+        if name.startswith(MASK_PREFIX) and merged.column(name).null_count:
+            merged = set_column(merged, name, merged.column(name).fill_null(False))
+    return merged
+
+
+def set_column(table: pa.Table, name: str, values: Any) -> pa.Table:
+    array = values if isinstance(values, (pa.Array, pa.ChunkedArray)) else pa.array(values)
+    if name in table.column_names:
+        return table.set_column(table.column_names.index(name), name, array)
+    return table.append_column(name, array)
+
+
+def write_atomic(table: pa.Table, path: Path) -> None:
+    """Write the table next to ``path`` and rename it over: readers see the old or the new file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(table, tmp)
+    with open(tmp, "rb") as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read(path: Path) -> pa.Table:
+    try:
+        table = pq.read_table(path)
+    except FileNotFoundError:
+        raise DemoError(path, "episode table is missing") from None
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise DemoError(path, f"episode table is corrupted ({str(exc).splitlines()[0]})") from None
+    missing = [c for c in FIXED_COLUMNS if c not in table.column_names]
+    if missing:
+        raise DemoError(path, f"episode table lacks column(s) {', '.join(missing)}")
+    return table
