@@ -12,3 +12,31 @@ from demo.cli.main import app
 
 bench_app = typer.Typer(help="Benchmarks written as JSON (figure and reference from the same run).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("load")
+def bench_load(
+    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    frames: int = typer.Option(1_000_000, help="Frames in the synthetic store."),
+    seconds: float = typer.Option(3.0, help="Timing budget per measurement."),
+    seed: int = typer.Option(0),
+) -> None:
+    """Window-sampling samples/s (batch 256, n_obs 2, H 16) vs a raw memory copy of the same bytes."""
+    from demo.bench.load import run
+    from demo.cli.output import console, table, write_json
+
+    result = run(frames=frames, seconds=seconds, seed=seed)
+    if json_out != "-":
+        console.print(
+            table(
+                "bench load",
+                ["figure", "value"],
+                [
+                    ("window samples/s", result["samples_per_s"]),
+                    ("raw copy samples/s (reference)", result["reference_samples_per_s"]),
+                    ("ratio", result["ratio_to_reference"]),
+                    ("target", f">= {result['target_samples_per_s']}: {'met' if result['meets_target'] else 'NOT met'}"),
+                ],
+            )
+        )
+    write_json(result, json_out)

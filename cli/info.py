@@ -8,6 +8,7 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.output import console, table, write_json
+from demo.errors import DemoError
 from demo.store import EpisodeStore
 
 
@@ -15,10 +16,16 @@ from demo.store import EpisodeStore
 def info(
     path: Path = typer.Argument(..., help="Store directory (e.g. pick.zarr)."),
     json_out: str = typer.Option(None, "--json", help="Write the summary as JSON to this file ('-' for stdout)."),
+    check: bool = typer.Option(False, "--check", help="Read every frame and verify the per-episode checksums."),
 ) -> None:
     """Episodes, frames, fps, task, robot, action representation, features, success, masks."""
     with EpisodeStore.open(path) as store:
         s = store.summary()
+        if check:
+            problems = store.verify()
+            s["check"] = {"ok": not problems, "problems": problems}
+            if problems:
+                raise DemoError(path, f"{len(problems)} damaged episode(s); first: {problems[0]}")
     if json_out:
         write_json(s, json_out)
         if json_out == "-":

@@ -22,10 +22,10 @@ finished episodes to a single writer (see demo.collect).
 from __future__ import annotations
 
 import fcntl
-
 import os
 import shutil
 import time
+import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -374,12 +374,14 @@ class EpisodeStore:
         if not episodes:
             return []
         checked = [self._validate(data) for data, _ in episodes]
+        infos = [info for _, info in episodes]
         total = self.num_frames
         self._trim_uncommitted(total)
         new_total = total + sum(n for _, n in checked)
         for key in self.meta.features:
             arr = self.array(key)
             arr.resize((new_total, *arr.shape[1:]))
+            # One block per key keeps the number of zarr writes independent of the episode count.
             block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
             arr[total:new_total] = block
         lengths = [n for _, n in checked]
@@ -390,7 +392,7 @@ class EpisodeStore:
         table = self._table
         indices = []
         start = total
-        for (_, info), length in zip(episodes, lengths):
+        for (data, _), info, length in zip(checked, infos, lengths):
             index = table.num_rows
             row = {
                 "episode_index": index,
@@ -402,6 +404,7 @@ class EpisodeStore:
                 "operator": str(info.get("operator", "")),
                 "task": str(info.get("task", (self.meta.task or {}).get("name", ""))),
                 "duration_s": length / self.meta.fps,
+                "crc32": self._checksum(data),
             }
             row.update({k: v for k, v in info.items() if k not in row})
             table = episode_table.append_row(table, episode_table.make_row(row))
@@ -410,6 +413,25 @@ class EpisodeStore:
         episode_table.write_atomic(table, self.path / TABLE_FILE)  # the commit
         self._table = table
         return indices
+
+    def _checksum(self, data: dict[str, np.ndarray]) -> int:
+        crc = 0
+        for key in self.meta.features:
+            crc = zlib.crc32(np.ascontiguousarray(data[key]).view(np.uint8).reshape(-1), crc)
+        return crc
+
+    def verify(self) -> list[str]:
+        """Read every committed frame and compare it with the episode's checksum; returns the problems."""
+        problems = []
+        for index in range(self.num_episodes):
+            try:
+                data = self.read_episode(index)
+            except DemoError as exc:
+                problems.append(f"episode {index}: {exc}")
+                continue
+            if self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
+                problems.append(f"episode {index}: data does not match its checksum (corrupted or missing chunk)")
+        return problems
 
     # ------------------------------------------------------------------ copies
     def copy_to(
@@ -435,7 +457,7 @@ class EpisodeStore:
         record.update(provenance or {})
         new_meta.provenance = [*new_meta.provenance, record]
         out = EpisodeStore.create(path, new_meta, overwrite=overwrite)
-        skip = {"episode_index", "start", "length", "duration_s"}
+        skip = {"episode_index", "start", "length", "duration_s", "crc32"}
         batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
         for index in chosen:
             data = self.read_episode(int(index))

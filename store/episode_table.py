@@ -12,6 +12,7 @@ source         string   scripted / kinesthetic / vr / dagger / imported / ...
 operator       string   who or what produced it (expert, good, okay, poor, a name)
 task           string   task name
 duration_s     float64  length / fps, in seconds of robot time
+crc32          int64    CRC-32 of the episode's bytes, features in metadata order
 =============  =======  ===========================================================
 
 Any other column is allowed: ``mask.<name>`` (bool) columns are named subsets, like robomimic's
@@ -41,6 +42,7 @@ FIXED_COLUMNS: dict[str, pa.DataType] = {
     "operator": pa.string(),
     "task": pa.string(),
     "duration_s": pa.float64(),
+    "crc32": pa.int64(),
 }
 MASK_PREFIX = "mask."
 SCORE_PREFIX = "score."
