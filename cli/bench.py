@@ -40,3 +40,33 @@ def bench_load(
             )
         )
     write_json(result, json_out)
+
+
+@bench_app.command("collect")
+def bench_collect(
+    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    task: str = typer.Option("pick"),
+    episodes: int = typer.Option(40, help="Episodes per measurement."),
+    seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference."),
+    seed: int = typer.Option(0),
+) -> None:
+    """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene."""
+    from demo.bench.collect import run
+    from demo.cli.output import console, table, write_json
+
+    r = run(task=task, episodes=episodes, seconds=seconds, seed=seed)
+    if json_out != "-":
+        console.print(
+            table(
+                f"bench collect ({task})",
+                ["figure", "value"],
+                [
+                    ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
+                    ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
+                    ("collection frames/s, 2 workers", r["two_workers"]["frames_per_s"]),
+                    ("ratio to physics (target >= 0.5)", r["ratio_to_physics"]),
+                    ("2-worker speed-up (target >= 1.7)", r["two_worker_speedup"]),
+                ],
+            )
+        )
+    write_json(r, json_out)

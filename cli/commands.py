@@ -8,7 +8,7 @@ from demo.cli.main import app
 from demo.cli.output import err_console
 
 # Subcommands that exist: one module each, imported for its @app.command() side effect.
-from demo.cli import bench, info  # noqa: F401,E402
+from demo.cli import bench, collect, info  # noqa: F401,E402
 
 NOT_BUILT = {
     "collect": ("Record demonstrations (scripted, kinesthetic, vr).", 3),
@@ -36,7 +36,9 @@ def _placeholder(name: str, help_text: str, issue: int) -> None:
     )(command)
 
 
-_registered = {c.name for c in app.registered_commands} | {g.name for g in app.registered_groups}
+_registered = {c.name or c.callback.__name__.replace("_", "-") for c in app.registered_commands} | {
+    g.name for g in app.registered_groups
+}
 for _name, (_help, _issue) in NOT_BUILT.items():
     if _name not in _registered:
         _placeholder(_name, _help, _issue)

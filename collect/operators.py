@@ -1,0 +1,116 @@
+"""Simulated operator profiles: how a person of a given skill would drive the scripted expert.
+
+Mixed-quality datasets (like robomimic's multi-human data) come from people who hesitate, jitter,
+switch strategies and sometimes fail. An :class:`Operator` wraps the state-feedback expert and turns
+its clean command into what such a person would have sent. For these episodes the recorded action is
+what the operator sent (a human dataset has no clean label); DART-style ``--noise`` is different:
+there the clean expert action is the label and only the executed action is perturbed.
+
+Per-episode draws (all from the episode's rng, so a seed reproduces the episode):
+
+========  =========  ==============  =============  ===================  ==========================
+profile   jitter     smooth drift    pauses         strategy             failure (freeze / drop)
+========  =========  ==============  =============  ===================  ==========================
+expert    0          0               none           default              never
+good      0.004 rad  0.01 rad        rare, short    small variations     2%
+okay      0.015 rad  0.03 rad        idle start     variations           10%
+poor      0.05 rad   0.06 rad        long, often    inconsistent         35%
+========  =========  ==============  =============  ===================  ==========================
+
+Jitter is white noise on the arm joint targets (jerky motion); drift is a slow random walk (the hand
+wandering off the ideal path, which the expert's feedback then corrects); a pause holds the last
+command for a while (idle frames); a failure either freezes the operator for the rest of the episode
+or opens the gripper early.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+PROFILE_NAMES = ("expert", "good", "okay", "poor")
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    jitter_rad: float  # std of white noise on arm joint targets per control step
+    drift_rad: float  # std of the slow random-walk offset on arm joint targets
+    idle_start_s: tuple[float, float]  # range of the idle time before the operator starts
+    pause_rate_hz: float  # expected mid-episode pauses per second
+    pause_s: tuple[float, float]  # range of a pause's duration
+    speed: tuple[float, float]  # range of the expert speed scale
+    vary_strategy: bool  # let the expert pick strategy variations from the rng
+    failure_prob: float  # chance that this episode contains an operator failure
+
+
+PROFILES: dict[str, Profile] = {
+    "expert": Profile("expert", 0.0, 0.0, (0.0, 0.0), 0.0, (0.0, 0.0), (1.0, 1.0), False, 0.0),
+    "good": Profile("good", 0.004, 0.01, (0.0, 0.3), 0.02, (0.2, 0.5), (0.85, 1.0), True, 0.02),
+    "okay": Profile("okay", 0.015, 0.03, (0.5, 1.5), 0.08, (0.3, 1.0), (0.7, 1.0), True, 0.10),
+    "poor": Profile("poor", 0.05, 0.06, (1.0, 3.0), 0.2, (0.5, 2.0), (0.5, 1.0), True, 0.35),
+}
+
+
+def get_profile(name: str) -> Profile:
+    if name not in PROFILES:
+        from demo.errors import DemoError
+
+        raise DemoError("--operator", f"unknown operator profile {name!r} (choose from {', '.join(PROFILE_NAMES)})")
+    return PROFILES[name]
+
+
+class Operator:
+    """Turns the expert's clean joint-position command into a simulated person's command.
+
+    ``n_arm`` is the number of arm joints at the front of the action; the remaining entries are the
+    gripper command, which only a failure ("drop") changes.
+    """
+
+    def __init__(self, profile: Profile, rng: np.random.Generator, fps: float, horizon: int, n_arm: int):
+        self.profile = profile
+        self.rng = rng
+        self.fps = fps
+        self.n_arm = n_arm
+        self.speed = float(rng.uniform(*profile.speed))
+        self.idle_steps = int(round(rng.uniform(*profile.idle_start_s) * fps))
+        self.fails = bool(rng.random() < profile.failure_prob)
+        self.failure_kind = str(rng.choice(["freeze", "drop"])) if self.fails else ""
+        self.failure_step = int(rng.integers(self.idle_steps + horizon // 4, max(self.idle_steps + horizon // 4 + 1, horizon * 3 // 4)))
+        self._drift = np.zeros(n_arm)
+        self._pause_left = 0
+        self._held: np.ndarray | None = None
+
+    @property
+    def expert_style(self) -> dict:
+        return {"speed": self.speed, "vary_strategy": self.profile.vary_strategy}
+
+    def command(self, step: int, clean: np.ndarray, hold: np.ndarray) -> np.ndarray:
+        """The command sent at control ``step``: ``clean`` from the expert, ``hold`` = keep still."""
+        p = self.profile
+        if step < self.idle_steps:
+            return hold.copy()
+        if self.fails and step >= self.failure_step:
+            if self.failure_kind == "freeze":
+                if self._held is None:
+                    self._held = hold.copy()
+                return self._held.copy()
+            out = clean.copy()
+            out[self.n_arm :] = 0.0  # drop: open the gripper, whatever the expert says
+            return out
+        if self._pause_left > 0:
+            self._pause_left -= 1
+            return self._held.copy() if self._held is not None else hold.copy()
+        if p.pause_rate_hz > 0 and self.rng.random() < p.pause_rate_hz / self.fps:
+            self._pause_left = int(round(self.rng.uniform(*p.pause_s) * self.fps))
+            self._held = hold.copy()
+            return self._held.copy()
+        self._held = None
+        out = clean.copy()
+        if p.drift_rad > 0:
+            self._drift = 0.95 * self._drift + self.rng.normal(0.0, p.drift_rad * np.sqrt(1 - 0.95**2), self.n_arm)
+            out[: self.n_arm] += self._drift
+        if p.jitter_rad > 0:
+            out[: self.n_arm] += self.rng.normal(0.0, p.jitter_rad, self.n_arm)
+        return out

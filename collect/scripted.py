@@ -1,0 +1,237 @@
+"""`demo collect --source scripted`: demonstrations from the tasks' state-feedback experts.
+
+Episodes run in worker processes and come back to this process, the store's single writer, in
+episode order, so the store's bytes depend on the seed and not on the number of workers. Each
+episode is appended atomically as soon as it (and every episode before it) is done: Ctrl-C or a
+crash keeps all finished episodes.
+
+Seeds: episode ``i`` of a run with ``--seed S`` starts from ``env.reset(episode_seed(S, i))``, a
+32-bit seed derived with numpy's SeedSequence so that runs with different ``S`` do not share
+initial states.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demo.collect.operators import Operator, get_profile
+from demo.collect.rollout import Episode, StepCommand, recorded_features, rollout
+from demo.errors import DemoError
+from demo.store import EpisodeStore, StoreMeta
+
+
+@dataclass
+class CollectConfig:
+    """Everything that determines a scripted collection run (and so its bytes)."""
+
+    task: str = "pick"
+    episodes: int = 50
+    seed: int = 0
+    operator: str = "expert"
+    noise: float = 0.0  # DART: std (rad) of noise on executed arm joint targets; the label stays clean
+    robot: str | None = None  # robot config TOML; None = built-in
+    task_options: dict[str, Any] = field(default_factory=dict)
+    cameras: tuple[tuple[str, int, int], ...] = ()
+    first_episode: int = 0  # index of the first episode in the seed sequence (to extend a run)
+
+
+def episode_seed(seed: int, index: int) -> int:
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
+def make_env_for(config: CollectConfig) -> Any:
+    from demo.sim import load_robot, make_env
+
+    return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
+
+
+def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Run one scripted episode: expert, optionally through an operator profile and DART noise."""
+    seed = episode_seed(config.seed, index)
+    rng = np.random.default_rng([seed, 1])
+    profile = get_profile(config.operator)
+    n_arm = len(env.robot.arm_joints)
+    operator = Operator(profile, rng, env.fps, env.horizon, n_arm) if profile.name != "expert" else None
+    env.reset(seed)
+    style = operator.expert_style if operator else {}
+    expert = env.expert(rng=np.random.default_rng([seed, 2]), **style)
+    last_sent: list[np.ndarray] = [env.hold_action()]
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        clean = np.asarray(expert.act(env), dtype=np.float32)
+        sent = operator.command(t, clean, last_sent[0]) if operator else clean
+        executed = sent.copy()
+        if config.noise > 0:
+            executed[:n_arm] += rng.normal(0.0, config.noise, n_arm).astype(np.float32)
+        last_sent[0] = sent
+        # A person's dataset holds what they sent; a DART dataset holds the clean expert label.
+        label = sent if operator else clean
+        return StepCommand(executed=executed, label=label, ee_target=np.asarray(expert.ee_target, np.float32))
+
+    episode: Episode = rollout(env, seed, act, reset=False)
+    info: dict[str, Any] = {
+        "success": episode.success,
+        "seed": seed,
+        "source": "scripted",
+        "operator": config.operator,
+        "task": config.task,
+        "noise": float(config.noise),
+        "expert_mode": str(expert.mode) if expert.mode is not None else "",
+        "first_success_step": -1 if episode.first_success_step is None else episode.first_success_step,
+    }
+    if operator:
+        info["operator_failure"] = operator.failure_kind
+    return episode.data, info
+
+
+# -------------------------------------------------------------------------- worker processes
+_worker_env: Any = None
+_worker_config: CollectConfig | None = None
+
+
+def _worker_init(config: CollectConfig) -> None:
+    global _worker_env, _worker_config
+    _worker_config = config
+    _worker_env = make_env_for(config)
+
+
+def _worker_run(index: int) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]:
+    assert _worker_config is not None
+    data, info = scripted_episode(_worker_env, _worker_config, index)
+    return index, data, info
+
+
+def run_episodes(config: CollectConfig, workers: int) -> Iterator[tuple[int, dict[str, np.ndarray], dict[str, Any]]]:
+    """Yield ``(index, data, info)`` in episode order, computed by ``workers`` processes."""
+    indices = range(config.first_episode, config.first_episode + config.episodes)
+    if workers <= 1:
+        env = make_env_for(config)
+        try:
+            for i in indices:
+                data, info = scripted_episode(env, config, i)
+                yield i, data, info
+        finally:
+            env.close()
+        return
+    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL state; same behaviour on every OS
+    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(config,))
+    try:
+        yield from pool.imap(_worker_run, indices, chunksize=1)
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+def store_meta(config: CollectConfig, env: Any) -> StoreMeta:
+    robot = env.robot
+    return StoreMeta(
+        fps=float(env.fps),
+        features=recorded_features(env),
+        action=env.action_spec,
+        robot={"name": robot.name, "config": str(robot.config_path) if config.robot else "builtin"},
+        task={"name": config.task, "options": dict(config.task_options), "horizon": int(env.horizon)},
+        provenance=[{"op": "collect", "source": "scripted", **_jsonable(asdict(config))}],
+    )
+
+
+def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items() if k != "episodes"}
+
+
+def open_output(out: Path, config: CollectConfig, append: bool, overwrite: bool) -> EpisodeStore:
+    """Create the output store, or open it to append after checking it records the same thing."""
+    env = make_env_for(config)
+    try:
+        meta = store_meta(config, env)
+    finally:
+        env.close()
+    if append and out.exists():
+        store = EpisodeStore.open(out, "a")
+        mismatch = [
+            name
+            for name, a, b in [
+                ("task", (store.meta.task or {}).get("name"), config.task),
+                ("task options", (store.meta.task or {}).get("options"), dict(config.task_options)),
+                ("robot", store.meta.robot, meta.robot),
+                ("features", {k: v.to_json() for k, v in store.meta.features.items()},
+                 {k: v.to_json() for k, v in meta.features.items()}),
+                ("action", store.meta.action.to_json(), meta.action.to_json()),
+            ]
+            if a != b
+        ]
+        if mismatch:
+            store.close()
+            raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
+        store.update_meta(provenance=[*store.meta.provenance, *meta.provenance])
+        return store
+    return EpisodeStore.create(out, meta, overwrite=overwrite)
+
+
+@dataclass
+class CollectResult:
+    path: str
+    episodes: int
+    successes: int
+    frames: int
+    seconds: float
+    modes: dict[str, int]
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / max(1, self.episodes)
+
+
+def collect_scripted(
+    config: CollectConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    append: bool = False,
+    overwrite: bool = False,
+    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+) -> CollectResult:
+    """Collect ``config.episodes`` scripted episodes into the store at ``out``.
+
+    ``on_episode(index, info, length)`` is called after each episode is committed (progress bars).
+    """
+    if config.episodes < 1:
+        raise DemoError("--episodes", "must be at least 1")
+    if config.noise < 0:
+        raise DemoError("--noise", "must be >= 0")
+    get_profile(config.operator)
+    out = Path(out)
+    store = open_output(out, config, append, overwrite)
+    if append:
+        config.first_episode = max(config.first_episode, _next_episode_index(store, config.seed))
+    successes = frames = 0
+    modes: dict[str, int] = {}
+    start = time.perf_counter()
+    try:
+        for index, data, info in run_episodes(config, workers):
+            store.append_episode(data, **info)
+            successes += int(info["success"])
+            frames += len(data["action"])
+            if info.get("expert_mode"):
+                modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
+            if on_episode:
+                on_episode(index, info, len(data["action"]))
+    finally:
+        store.close()
+    return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes)
+
+
+def _next_episode_index(store: EpisodeStore, seed: int) -> int:
+    """When appending with the same seed, continue the seed sequence instead of repeating episodes."""
+    seeds = set(store.column("seed").tolist()) if store.num_episodes else set()
+    i = 0
+    while episode_seed(seed, i) in seeds:
+        i += 1
+    return i
