@@ -1,7 +1,8 @@
 """`demo bench collect`: recorded frames/s of scripted collection against the raw physics rate.
 
 Figure: control steps recorded per second by ``collect_scripted`` (expert, IK, observation and
-store writes included) with 1 and with 2 worker processes. Rates are steady-state: timed from the
+store writes included) with 1 and with 2 simulation worker processes (the calling process is the
+store's writer in both, as in ``demo collect``), and with everything in one process (workers=0). Rates are steady-state: timed from the
 first committed episode to the last, so worker start-up (importing MuJoCo, building the scene) is
 reported separately and not counted.
 
@@ -72,6 +73,7 @@ def run(task: str = "pick", episodes: int = 40, seconds: float = 3.0, seed: int 
     config = CollectConfig(task=task, episodes=episodes, seed=seed)
     physics = raw_physics_rate(config, seconds)
     with tempfile.TemporaryDirectory() as tmp:
+        inline = timed_collection(config, 0, Path(tmp))
         one = timed_collection(config, 1, Path(tmp))
         two = timed_collection(config, 2, Path(tmp))
     ratio = one["frames_per_s"] / physics["control_steps_per_s"]
@@ -79,6 +81,7 @@ def run(task: str = "pick", episodes: int = 40, seconds: float = 3.0, seed: int 
     return {
         "benchmark": "collect",
         "task": task,
+        "single_process": inline,
         "one_worker": one,
         "two_workers": two,
         "reference": "bare mj_step(m, d, nstep=n_substeps) on the same scene, control steps/s",

@@ -35,7 +35,7 @@ def collect(
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
     episodes: int = typer.Option(50, help="Number of episodes."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states (and of all noise)."),
-    workers: int = typer.Option(1, help="Parallel worker processes."),
+    workers: int = typer.Option(1, help="Simulation processes feeding this (writer) process; 0 = all in this process."),
     noise: float = typer.Option(0.0, help="DART noise: std (rad) added to executed joint targets; labels stay clean."),
     operator: str = typer.Option("expert", help="Simulated operator profile: expert, good, okay, poor."),
     robot: Path = typer.Option(None, help="Robot config TOML (default: the built-in arm)."),

@@ -1,9 +1,10 @@
 """`demo collect --source scripted`: demonstrations from the tasks' state-feedback experts.
 
 Episodes run in worker processes and come back to this process, the store's single writer, in
-episode order, so the store's bytes depend on the seed and not on the number of workers. Each
-episode is appended atomically as soon as it (and every episode before it) is done: Ctrl-C or a
-crash keeps all finished episodes.
+episode order, so the store's bytes depend on the seed and not on the number of workers. Finished
+episodes are committed as soon as they (and every episode before them) are back, several per
+commit when they arrive faster than one store write: Ctrl-C or a crash keeps every committed
+episode, and no episode is ever half-written.
 
 Seeds: episode ``i`` of a run with ``--seed S`` starts from ``env.reset(episode_seed(S, i))``, a
 32-bit seed derived with numpy's SeedSequence so that runs with different ``S`` do not share
@@ -52,6 +53,12 @@ def make_env_for(config: CollectConfig) -> Any:
     return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
 
 
+def hold_action(env: Any) -> np.ndarray:
+    """The command that keeps the robot where it is: measured joint angles and gripper closedness."""
+    obs = env.observe()
+    return np.r_[obs["obs.joint_pos"], obs["obs.gripper"]].astype(np.float32)
+
+
 def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Run one scripted episode: expert, optionally through an operator profile and DART noise."""
     seed = episode_seed(config.seed, index)
@@ -62,7 +69,7 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     env.reset(seed)
     style = operator.expert_style if operator else {}
     expert = env.expert(rng=np.random.default_rng([seed, 2]), **style)
-    last_sent: list[np.ndarray] = [env.hold_action()]
+    last_sent: list[np.ndarray] = [hold_action(env)]
 
     def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
         clean = np.asarray(expert.act(env), dtype=np.float32)
@@ -108,22 +115,42 @@ def _worker_run(index: int) -> tuple[int, dict[str, np.ndarray], dict[str, Any]]
     return index, data, info
 
 
-def run_episodes(config: CollectConfig, workers: int) -> Iterator[tuple[int, dict[str, np.ndarray], dict[str, Any]]]:
-    """Yield ``(index, data, info)`` in episode order, computed by ``workers`` processes."""
+EpisodeResult = tuple[int, dict[str, np.ndarray], dict[str, Any]]
+MAX_BATCH_FRAMES = 50_000
+
+
+def run_episodes(config: CollectConfig, workers: int) -> Iterator[list[EpisodeResult]]:
+    """Yield batches of ``(index, data, info)`` in episode order.
+
+    ``workers == 0`` simulates in this process, one episode per batch. ``workers >= 1`` simulates in
+    that many processes while this process only writes: each batch holds every episode that has
+    finished (in order) since the last one, so the per-write overhead of the store is shared by
+    all of them and never holds up the simulation.
+    """
     indices = range(config.first_episode, config.first_episode + config.episodes)
-    if workers <= 1:
+    if workers <= 0:
         env = make_env_for(config)
         try:
             for i in indices:
                 data, info = scripted_episode(env, config, i)
-                yield i, data, info
+                yield [(i, data, info)]
         finally:
             env.close()
         return
     ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL state; same behaviour on every OS
     pool = ctx.Pool(workers, initializer=_worker_init, initargs=(config,))
     try:
-        yield from pool.imap(_worker_run, indices, chunksize=1)
+        results = pool.imap(_worker_run, indices, chunksize=1)
+        for first in results:
+            batch, frames = [first], len(first[1]["action"])
+            while frames < MAX_BATCH_FRAMES:
+                try:
+                    ready = results.next(timeout=0)
+                except (mp.TimeoutError, StopIteration):
+                    break
+                batch.append(ready)
+                frames += len(ready[1]["action"])
+            yield batch
         pool.close()
     finally:
         pool.terminate()
@@ -215,14 +242,15 @@ def collect_scripted(
     modes: dict[str, int] = {}
     start = time.perf_counter()
     try:
-        for index, data, info in run_episodes(config, workers):
-            store.append_episode(data, **info)
-            successes += int(info["success"])
-            frames += len(data["action"])
-            if info.get("expert_mode"):
-                modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
-            if on_episode:
-                on_episode(index, info, len(data["action"]))
+        for batch in run_episodes(config, workers):
+            store.append_episodes([(data, info) for _, data, info in batch])
+            for index, data, info in batch:
+                successes += int(info["success"])
+                frames += len(data["action"])
+                if info.get("expert_mode"):
+                    modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
+                if on_episode:
+                    on_episode(index, info, len(data["action"]))
     finally:
         store.close()
     return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes)

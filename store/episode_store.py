@@ -12,7 +12,9 @@ Appending is atomic per episode. The frames are written first (zarr writes each 
 temporary file and renames it, so a chunk holding committed frames is always either its old or its
 new version), then ``meta/episode_ends``, and last the episode table, renamed into place: that
 rename is the commit. Frames beyond the table's last episode belong to an append that never
-committed; readers ignore them and the next writer trims them. A crash or SIGKILL at any point
+committed; readers ignore them and a writer overwrites them. While a writer holds the store, arrays
+carry spare capacity past the committed frames (so most appends rewrite no array metadata); closing
+the writer trims them to the committed length. A crash or SIGKILL at any point
 therefore leaves every finished episode readable.
 
 One process writes at a time (an advisory ``flock`` on ``.lock``); parallel collectors send
@@ -21,6 +23,7 @@ finished episodes to a single writer (see demo.collect).
 
 from __future__ import annotations
 
+import asyncio
 import fcntl
 import os
 import shutil
@@ -33,6 +36,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import zarr
+from zarr.core.sync import sync
 
 from demo.errors import DemoError
 from demo.store import episode_table
@@ -40,7 +44,7 @@ from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
 
 TABLE_FILE = "episodes.parquet"
 LOCK_FILE = ".lock"
-CHUNK_BYTES = 256 * 1024
+CHUNK_BYTES = 64 * 1024  # small enough that an append re-compresses little, big enough for fast reads
 EpisodeSelection = None | str | Sequence[int] | np.ndarray
 
 
@@ -135,6 +139,11 @@ class EpisodeStore:
 
     def close(self) -> None:
         if self._lock_fd is not None:
+            self._trim_to_committed()
+            self._release_lock()
+
+    def _release_lock(self) -> None:
+        if self._lock_fd is not None:
             fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
             os.close(self._lock_fd)
             self._lock_fd = None
@@ -146,8 +155,10 @@ class EpisodeStore:
         self.close()
 
     def __del__(self) -> None:
+        # No zarr I/O here: during interpreter shutdown zarr cannot start its event loop. A store
+        # that was never closed keeps spare capacity past the committed frames, which is harmless.
         try:
-            self.close()
+            self._release_lock()
         except Exception:
             pass
 
@@ -349,15 +360,24 @@ class EpisodeStore:
             out[key] = arr
         return out, length
 
-    def _trim_uncommitted(self, total: int) -> None:
-        """Drop frames an interrupted append left beyond the committed end."""
+    def _trim_to_committed(self) -> None:
+        """Shrink every array to the committed frames (drops spare capacity and uncommitted tails)."""
+        total, n = self.num_frames, self.num_episodes
+        resizes = [(self.array(k), (total, *self.array(k).shape[1:])) for k in self.meta.features]
+        resizes.append((self._ends_array(), (n,)))
+        _run_concurrently([a.async_array.resize(shape) for a, shape in resizes if a.shape != shape])
+
+    def _ensure_capacity(self, frames: int, episodes: int) -> None:
+        """Grow arrays geometrically so most appends rewrite no array metadata."""
+        resizes = []
         for key in self.meta.features:
             arr = self.array(key)
-            if arr.shape[0] != total:
-                arr.resize((total, *arr.shape[1:]))
+            if arr.shape[0] < frames:
+                resizes.append((arr, (max(frames, arr.shape[0] * 3 // 2, 1024), *arr.shape[1:])))
         ends = self._ends_array()
-        if ends.shape[0] != self.num_episodes:
-            ends.resize((self.num_episodes,))
+        if ends.shape[0] < episodes:
+            resizes.append((ends, (max(episodes, ends.shape[0] * 3 // 2, 64),)))
+        _run_concurrently([a.async_array.resize(shape) for a, shape in resizes])
 
     def append_episode(self, data: dict[str, np.ndarray], **info: Any) -> int:
         """Append one episode atomically and return its index.
@@ -376,19 +396,18 @@ class EpisodeStore:
         checked = [self._validate(data) for data, _ in episodes]
         infos = [info for _, info in episodes]
         total = self.num_frames
-        self._trim_uncommitted(total)
-        new_total = total + sum(n for _, n in checked)
-        for key in self.meta.features:
-            arr = self.array(key)
-            arr.resize((new_total, *arr.shape[1:]))
-            # One block per key keeps the number of zarr writes independent of the episode count.
-            block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
-            arr[total:new_total] = block
         lengths = [n for _, n in checked]
+        new_total = total + sum(lengths)
+        n_before = self.num_episodes
+        self._ensure_capacity(new_total, n_before + len(checked))
+        # All chunk writes of this append go to zarr at once: one event-loop round trip, not one per key.
+        writes = []
+        for key in self.meta.features:
+            block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
+            writes.append(self.array(key).async_array.setitem(slice(total, new_total), block))
         new_ends = total + np.cumsum(lengths, dtype=np.int64)
-        ends = self._ends_array()
-        ends.resize((self.num_episodes + len(checked),))
-        ends[self.num_episodes:] = new_ends
+        writes.append(self._ends_array().async_array.setitem(slice(n_before, n_before + len(checked)), new_ends))
+        _run_concurrently(writes)
         table = self._table
         indices = []
         start = total
@@ -502,6 +521,15 @@ class EpisodeStore:
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "provenance": self.meta.provenance,
         }
+
+
+def _run_concurrently(coroutines: list[Any]) -> None:
+    if coroutines:
+        sync(_gather(coroutines))
+
+
+async def _gather(coroutines: list[Any]) -> None:
+    await asyncio.gather(*coroutines)
 
 
 def _first_line(exc: BaseException) -> str:

@@ -88,11 +88,13 @@ def set_column(table: pa.Table, name: str, values: Any) -> pa.Table:
 
 
 def write_atomic(table: pa.Table, path: Path) -> None:
-    """Write the table next to ``path`` and rename it over: readers see the old or the new file."""
+    """Write the table next to ``path`` and rename it over: readers see the old or the new file.
+
+    No fsync: the guarantee is against process crashes and kills, like zarr's own chunk writes;
+    surviving power loss would need every chunk synced too.
+    """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     pq.write_table(table, tmp)
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
     os.replace(tmp, path)
 
 

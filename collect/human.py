@@ -1,0 +1,212 @@
+"""What kinesthetic and VR-style collection share: the store layout, episode seeds, the run loop.
+
+Store: a human episode records everything a scripted one does (``recorded_features(env)``, the
+same ``store_meta``) plus two per-frame keys, ``info.ik_ok`` and ``info.ik_error``
+(:func:`demo.collect.retarget.retarget_features`): whether the person's command could be executed
+as given (VR: the hand pose was reached by IK; kinesthetic: the recorded joints were inside the
+joint range). The episode table gets ``source`` ("kinesthetic"/"vr"), ``operator`` (the person),
+``unreachable_frames`` (frames with ``ik_ok`` false), ``first_success_step``, and ``input`` /
+``input_line`` (file and line where the episode starts).
+
+Initial states: an input file names each episode's initial state by a header (``episode_seed``);
+an episode without one starts from ``env.reset(episode_seed(seed, i))``, the seed scripted
+collection uses for its ``i``-th episode, so a file made from ``demo collect --source scripted
+--seed S`` replays from the same states with ``seed=S``.
+
+Length: an episode lasts the recording plus at most ``TAIL_S`` holding the last command; like a
+scripted one it ends early once the task's success has held for 0.5 s.
+
+Input files are parsed completely before the store is opened, so a bad line changes nothing.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demo.collect.retarget import retarget_features
+from demo.collect.scripted import CollectConfig, CollectResult, episode_seed, make_env_for, store_meta
+from demo.errors import DemoError
+from demo.store import EpisodeStore, StoreMeta
+
+HUMAN_SOURCES = ("kinesthetic", "vr")
+DEFAULT_OPERATOR = "human"
+TAIL_S = 1.0  # s of holding the last command after a recording ends
+
+
+@dataclass
+class HumanConfig:
+    """Everything that determines a human-input collection run."""
+
+    task: str
+    source: str  # "kinesthetic" | "vr"
+    input: str  # the input file
+    seed: int = 0
+    operator: str | None = None  # None: the file's header, else DEFAULT_OPERATOR
+    robot: str | None = None
+    task_options: dict[str, Any] = field(default_factory=dict)
+    cameras: tuple[tuple[str, int, int], ...] = ()
+    settings: dict[str, Any] = field(default_factory=dict)  # source-specific (ik, scale, calib, ...)
+
+    def collect_config(self) -> CollectConfig:
+        return CollectConfig(
+            task=self.task, episodes=1, seed=self.seed, operator="expert", robot=self.robot,
+            task_options=dict(self.task_options), cameras=tuple(self.cameras),
+        )
+
+
+@dataclass
+class HumanCollectResult(CollectResult):
+    unreachable_frames: int = 0
+
+
+@dataclass
+class InputEpisode:
+    """One episode read from an input file: where it starts and its own header fields."""
+
+    line: int  # 1-based line of the file where the episode starts
+    seed: int | None  # env.reset seed from the header, if any
+    operator: str | None
+
+
+def reset_seed(episode: InputEpisode, seed: int, index: int) -> int:
+    return int(episode.seed) if episode.seed is not None else episode_seed(seed, index)
+
+
+def human_store_meta(config: HumanConfig, env: Any) -> StoreMeta:
+    """The scripted store layout (``store_meta``) plus the per-frame human keys and provenance."""
+    meta = store_meta(config.collect_config(), env)
+    meta.features = {**meta.features, **retarget_features()}
+    meta.provenance = [{
+        "op": "collect", "source": config.source, "input": str(config.input), "seed": config.seed,
+        "operator": config.operator, "task": config.task, "robot": config.robot,
+        "task_options": dict(config.task_options), "cameras": [list(c) for c in config.cameras],
+        **config.settings,
+    }]
+    return meta
+
+
+def open_human_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
+    """Create the store, or open it to append after checking it records the same thing."""
+    if append and out.exists():
+        store = EpisodeStore.open(out, "a")
+        have, want = store.meta, meta
+        mismatch = [
+            name
+            for name, a, b in [
+                ("task", (have.task or {}).get("name"), (want.task or {}).get("name")),
+                ("task options", (have.task or {}).get("options"), (want.task or {}).get("options")),
+                ("robot", have.robot, want.robot),
+                ("features", {k: v.to_json() for k, v in have.features.items()},
+                 {k: v.to_json() for k, v in want.features.items()}),
+                ("action", have.action.to_json(), want.action.to_json()),
+            ]
+            if a != b
+        ]
+        if mismatch:
+            store.close()
+            raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
+        store.update_meta(provenance=[*have.provenance, *want.provenance])
+        return store
+    return EpisodeStore.create(out, meta, overwrite=overwrite)
+
+
+EpisodeRunner = Callable[[Any, int, int], tuple[dict[str, np.ndarray], dict[str, Any]]]
+
+
+def record_episodes(
+    config: HumanConfig,
+    count: int,
+    run_episode: EpisodeRunner,
+    out: str | Path,
+    *,
+    append: bool = False,
+    overwrite: bool = False,
+    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+) -> HumanCollectResult:
+    """Run ``run_episode(env, index, count)`` for every input episode and append each to ``out``.
+
+    ``run_episode`` returns ``(data, info)`` as ``store.append_episode`` takes them.
+    """
+    out = Path(out)
+    env = make_env_for(config.collect_config())
+    start = time.perf_counter()
+    successes = frames = unreachable = 0
+    try:
+        store = open_human_output(out, human_store_meta(config, env), append, overwrite)
+        try:
+            for index in range(count):
+                data, info = run_episode(env, index, count)
+                store.append_episode(data, **info)
+                successes += int(info["success"])
+                frames += len(data["action"])
+                unreachable += int(info.get("unreachable_frames", 0))
+                if on_episode:
+                    on_episode(index, info, len(data["action"]))
+        finally:
+            store.close()
+    finally:
+        env.close()
+    return HumanCollectResult(str(out), count, successes, frames, time.perf_counter() - start, {}, unreachable)
+
+
+def episode_info(
+    config: HumanConfig, episode: InputEpisode, seed: int, success: bool, first_success: int | None, ik_ok: np.ndarray
+) -> dict[str, Any]:
+    return {
+        "success": bool(success),
+        "seed": int(seed),
+        "source": config.source,
+        "operator": config.operator or episode.operator or DEFAULT_OPERATOR,
+        "task": config.task,
+        "unreachable_frames": int((~ik_ok.astype(bool)).sum()),
+        "first_success_step": -1 if first_success is None else int(first_success),
+        "input": Path(config.input).name,
+        "input_line": int(episode.line),
+    }
+
+
+def check_task(path: Path, line: int, header_task: Any, task: str) -> None:
+    if header_task is not None and header_task != task:
+        raise DemoError(f"{path}:{line}", f"episode was recorded for task {header_task!r}, not {task!r}")
+
+
+def as_floats(where: str, name: str, value: Any, n: int) -> np.ndarray:
+    """A list of ``n`` finite numbers, or a DemoError naming ``where`` (file:line)."""
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        raise DemoError(where, f"'{name}' must be a list of {n} numbers, got {_short(value)}")
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        raise DemoError(where, f"'{name}' must hold numbers, got {_short(value)}")
+    arr = np.asarray(value, dtype=np.float64)
+    if not np.isfinite(arr).all():
+        raise DemoError(where, f"'{name}' has a non-finite value (NaN or inf): {_short(value)}")
+    return arr
+
+
+def as_float(where: str, name: str, value: Any) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise DemoError(where, f"'{name}' must be a number, got {_short(value)}")
+    v = float(value)
+    if not np.isfinite(v):
+        raise DemoError(where, f"'{name}' is not finite ({value})")
+    return v
+
+
+def check_time(where: str, t: float, previous: float | None) -> None:
+    if previous is not None and t <= previous:
+        what = "repeats" if t == previous else "goes backwards"
+        raise DemoError(where, f"time {what}: t={t:g} s after t={previous:g} s")
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def fixed_names(names: Sequence[str]) -> str:
+    return ", ".join(names)

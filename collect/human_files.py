@@ -1,0 +1,203 @@
+"""Synthetic human input files made from scripted demonstrations (for tests, demos and benchmarks).
+
+    python -m demo.collect.human_files --task pick --episodes 20 --seed 0 --out-dir human/
+
+writes, from the scripted expert's episodes ``episode_seed(seed, i)`` (the same initial states as
+``demo collect --source scripted --seed S``):
+
+- ``POSES.jsonl``: the measured end-effector path re-expressed as a hand tracked in another frame
+  (:class:`TrackerFrame`: rotated, offset, motion scaled by 1.3, a few mm of position noise, a
+  little rotation noise and timestamp jitter, at 60 Hz), with the gripper command as the grip
+  value and a header ``{"episode_seed": N}`` per episode;
+- ``CALIB.json``: the exact tracker -> base calibration of that frame (for ``--calib``);
+- ``JOINTS.csv``: the measured joint trajectory at 100 Hz with encoder noise, plus the gripper
+  command, one ``episode_seed`` per episode.
+
+Retarget them with ``collect_vr(task, POSES.jsonl, out, scale=1/1.3)`` (first pose aligned to the
+EE) or ``collect_vr(..., calib=CALIB.json)`` (absolute), and ``collect_kinesthetic(task,
+JOINTS.csv, out)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demo.collect.scripted import CollectConfig, make_env_for, scripted_episode
+from demo.sim.geometry import axis_angle_quat, quat_conj, quat_mul
+
+
+@dataclass(frozen=True)
+class TrackerFrame:
+    """Where the synthetic tracker is: ``p_tracker = offset + scale * R p_base`` (+ noise)."""
+
+    rotation: tuple[float, ...] = tuple(  # base z-up -> tracker y-up (OpenXR style), turned 35 deg
+        quat_mul(axis_angle_quat(np.array([0.0, 1.0, 0.0]), np.deg2rad(35.0)),
+                 axis_angle_quat(np.array([1.0, 0.0, 0.0]), -np.pi / 2)).tolist()
+    )
+    offset: tuple[float, float, float] = (0.42, 1.05, -0.7)  # tracker units
+    scale: float = 1.3  # tracker units per robot metre: the hand moves 1.3x the robot
+    noise_m: float = 0.002  # std of position noise per axis, in robot metres (x scale in the file)
+    rot_noise_rad: float = 0.004  # std of rotation noise per axis
+    rate_hz: float = 60.0
+    time_jitter_s: float = 0.002
+
+    def calibration(self) -> dict[str, Any]:
+        """The inverse map, as a ``--calib`` file: ``p_base = translation + s R^T p_tracker``."""
+        r_inv = quat_conj(np.array(self.rotation))
+        return {
+            "rotation": r_inv.tolist(),
+            "translation": (-_rotate(r_inv, np.array(self.offset)) / self.scale).tolist(),
+            "scale": 1.0 / self.scale,
+        }
+
+
+@dataclass(frozen=True)
+class JointFileParams:
+    rate_hz: float = 100.0
+    noise_rad: float = 2e-4  # encoder noise std
+
+
+@dataclass
+class ScriptedPath:
+    seed: int  # env.reset seed
+    fps: float
+    joints: tuple[str, ...]
+    ee_pos: np.ndarray  # (T, 3) base frame, measured
+    ee_quat: np.ndarray  # (T, 4)
+    joint_pos: np.ndarray  # (T, n_arm), measured
+    gripper: np.ndarray  # (T,) command
+    success: bool = True
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def scripted_paths(task: str, episodes: int, seed: int, robot: str | None = None,
+                   task_options: dict[str, Any] | None = None) -> list[ScriptedPath]:
+    """Run the scripted expert (``demo collect --source scripted`` episodes) and keep its paths."""
+    config = CollectConfig(task=task, episodes=episodes, seed=seed, robot=robot, task_options=dict(task_options or {}))
+    env = make_env_for(config)
+    out = []
+    try:
+        for i in range(episodes):
+            data, info = scripted_episode(env, config, i)
+            out.append(ScriptedPath(
+                seed=int(info["seed"]), fps=float(env.fps), joints=tuple(env.robot.arm_joints),
+                ee_pos=data["obs.ee_pos"].astype(np.float64), ee_quat=data["obs.ee_quat"].astype(np.float64),
+                joint_pos=data["obs.joint_pos"].astype(np.float64), gripper=data["action"][:, -1].astype(np.float64),
+                success=bool(info["success"]),
+            ))
+    finally:
+        env.close()
+    return out
+
+
+def pose_lines(path: ScriptedPath, frame: TrackerFrame, rng: np.random.Generator, task: str) -> list[str]:
+    """The JSONL lines of one episode: header, then hand poses in the tracker frame."""
+    lines = [json.dumps({"episode_seed": path.seed, "task": task, "operator": "synthetic"})]
+    duration = (len(path.ee_pos) - 1) / path.fps
+    n = int(np.floor(duration * frame.rate_hz)) + 1
+    t = np.arange(n) / frame.rate_hz
+    t[1:-1] += rng.uniform(-frame.time_jitter_s, frame.time_jitter_s, n - 2)
+    rot = np.array(frame.rotation)
+    for tj in t:
+        pos, quat, grip = _path_at(path, float(tj))
+        pos_t = np.array(frame.offset) + frame.scale * (_rotate(rot, pos) + rng.normal(0.0, frame.noise_m, 3))
+        noise = rng.normal(0.0, frame.rot_noise_rad, 3)
+        quat_t = quat_mul(rot, quat_mul(axis_angle_quat(noise, float(np.linalg.norm(noise))), quat))
+        lines.append(json.dumps({
+            "t": round(float(tj), 6), "pos": [round(float(v), 6) for v in pos_t],
+            "quat": [round(float(v), 7) for v in quat_t / np.linalg.norm(quat_t)], "grip": float(grip),
+        }))
+    return lines
+
+
+def _path_at(path: ScriptedPath, t: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Measured EE pose at time ``t`` (linear / normalised-linear between frames), gripper command held."""
+    x = t * path.fps
+    i = int(min(np.floor(x), len(path.ee_pos) - 1))
+    j = min(i + 1, len(path.ee_pos) - 1)
+    w = min(max(x - i, 0.0), 1.0)
+    pos = (1 - w) * path.ee_pos[i] + w * path.ee_pos[j]
+    qi, qj = path.ee_quat[i], path.ee_quat[j]
+    if qi @ qj < 0:
+        qj = -qj
+    quat = (1 - w) * qi + w * qj
+    return pos, quat / np.linalg.norm(quat), float(path.gripper[i])
+
+
+def joint_rows(path: ScriptedPath, params: JointFileParams, rng: np.random.Generator) -> list[list[Any]]:
+    duration = (len(path.joint_pos) - 1) / path.fps
+    n = int(np.floor(duration * params.rate_hz + 1e-9)) + 1
+    t = np.arange(n) / params.rate_hz
+    src = np.arange(len(path.joint_pos)) / path.fps
+    q = np.stack([np.interp(t, src, path.joint_pos[:, j]) for j in range(path.joint_pos.shape[1])], axis=1)
+    q += rng.normal(0.0, params.noise_rad, q.shape)
+    grip = path.gripper[np.minimum(np.floor(t * path.fps + 1e-9).astype(int), len(path.gripper) - 1)]
+    return [[path.seed, f"{tj:.4f}", *[f"{v:.6f}" for v in qj], f"{g:g}"] for tj, qj, g in zip(t, q, grip)]
+
+
+def write_human_files(
+    out_dir: str | Path,
+    task: str = "pick",
+    episodes: int = 20,
+    seed: int = 0,
+    *,
+    robot: str | None = None,
+    task_options: dict[str, Any] | None = None,
+    frame: TrackerFrame = TrackerFrame(),
+    joints: JointFileParams = JointFileParams(),
+) -> dict[str, Any]:
+    """Write POSES.jsonl, CALIB.json and JOINTS.csv into ``out_dir``; returns a summary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = scripted_paths(task, episodes, seed, robot, task_options)
+    rng = np.random.default_rng([seed, 8])
+    lines: list[str] = []
+    for p in paths:
+        lines += pose_lines(p, frame, rng, task)
+    (out / "POSES.jsonl").write_text("\n".join(lines) + "\n")
+    (out / "CALIB.json").write_text(json.dumps(frame.calibration(), indent=2) + "\n")
+    with open(out / "JOINTS.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["episode_seed", "t", *paths[0].joints, "gripper"])
+        for p in paths:
+            writer.writerows(joint_rows(p, joints, rng))
+    return {
+        "out_dir": str(out), "task": task, "episodes": episodes, "seed": seed,
+        "scripted_successes": sum(p.success for p in paths),
+        "files": ["POSES.jsonl", "CALIB.json", "JOINTS.csv"],
+        "vr_scale": 1.0 / frame.scale,
+    }
+
+
+def _rotate(quat: np.ndarray, v: np.ndarray) -> np.ndarray:
+    w, x, y, z = quat
+    u = np.array([x, y, z])
+    return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m demo.collect.human_files", description=__doc__.split("\n")[0])
+    parser.add_argument("--task", default="pick")
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out-dir", required=True)
+    parser.add_argument("--robot", default=None, help="robot config TOML (default: built-in)")
+    args = parser.parse_args(argv)
+    summary = write_human_files(args.out_dir, args.task, args.episodes, args.seed, robot=args.robot)
+    d = summary["out_dir"]
+    print(json.dumps(summary, indent=2))
+    print(f"# replay:\n#   collect_vr('{args.task}', '{d}/POSES.jsonl', OUT, scale={summary['vr_scale']:.6f})"
+          f"\n#   collect_vr('{args.task}', '{d}/POSES.jsonl', OUT, calib='{d}/CALIB.json')"
+          f"\n#   collect_kinesthetic('{args.task}', '{d}/JOINTS.csv', OUT)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

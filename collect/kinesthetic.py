@@ -1,0 +1,212 @@
+"""`demo collect --source kinesthetic`: a recorded joint trajectory played through the simulator.
+
+Input, ``JOINTS.csv`` (a person guiding an arm, recorded at any rate)::
+
+    episode_seed,t,joint1,joint2,joint3,joint4,joint5,joint6,joint7,gripper
+    1234,0.00,0.012,-0.781,...,0.0
+    1234,0.01,0.013,-0.779,...,0.0
+
+- A header row names the columns, in any order: ``t`` (s, strictly increasing within an
+  episode), one column per arm joint of the robot config, by name (rad, measured joint
+  positions), ``gripper`` (the gripper command, 0 = open .. 1 = closed) and, optionally,
+  ``episode_seed``: the ``env.reset`` seed of the episode's initial state; a new value starts a
+  new episode. Without it the file is one episode from ``episode_seed(seed, 0)``.
+- Lines starting with ``#`` are comments.
+
+Playback: the trajectory is resampled to the control rate (linear interpolation). The arm starts at
+the recording's first configuration (the objects come from the seed: a person starts guiding
+from wherever the arm was), and the command of frame ``k`` is the recorded configuration one
+control step later, so the position servos reproduce the recorded motion rather than lag it by
+a step. Joint values outside the robot's joint range are clipped for execution and flagged in
+``info.ik_ok`` (never silently): the recording does not fit this robot there.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from demo.collect.human import (
+    TAIL_S,
+    HumanCollectResult,
+    HumanConfig,
+    InputEpisode,
+    check_time,
+    episode_info,
+    record_episodes,
+    reset_seed,
+)
+from demo.collect.rollout import StepCommand, rollout
+from demo.errors import DemoError
+from demo.sim import load_robot
+
+LIMIT_TOL = 1e-3  # rad beyond a joint limit that still counts as inside (encoder noise)
+
+
+@dataclass
+class JointTrack:
+    """One episode of a recorded joint trajectory."""
+
+    episode: InputEpisode
+    t: np.ndarray  # (N,) s
+    q: np.ndarray  # (N, n_arm) rad, robot.arm_joints order
+    gripper: np.ndarray  # (N,) 0 open .. 1 closed
+
+
+def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...]) -> list[JointTrack]:
+    """Read and validate a joint CSV; any problem is a DemoError naming ``path:line``."""
+    path = Path(path)
+    if not path.is_file():
+        raise DemoError(path, "joint file not found")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DemoError(path, f"not a UTF-8 text file ({exc.reason})") from None
+    reader = csv.reader(text.splitlines())
+    columns: dict[str, int] | None = None
+    tracks: list[JointTrack] = []
+    rows: list[tuple[float, np.ndarray, float]] = []
+    current: tuple[int, int | None] | None = None  # (line, seed) of the open episode
+
+    def close() -> None:
+        if current is not None and rows:
+            t, q, g = zip(*rows)
+            tracks.append(JointTrack(InputEpisode(current[0], current[1], None), np.array(t), np.array(q), np.array(g)))
+
+    for row in reader:
+        number = reader.line_num
+        where = f"{path}:{number}"
+        if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue
+        cells = [c.strip() for c in row]
+        if columns is None:
+            columns = _header(where, cells, arm_joints)
+            continue
+        if len(cells) != len(columns):
+            raise DemoError(where, f"expected {len(columns)} values (as the header), got {len(cells)}")
+        seed: int | None = None
+        if "episode_seed" in columns:
+            raw = cells[columns["episode_seed"]]
+            try:
+                seed = int(raw)
+            except ValueError:
+                raise DemoError(where, f"'episode_seed' must be an integer, got {raw!r}") from None
+            if seed < 0:
+                raise DemoError(where, f"'episode_seed' must be >= 0, got {seed}")
+        if current is None or ("episode_seed" in columns and seed != current[1]):
+            close()
+            current, rows = (number, seed), []
+        t = _number(where, "t", cells[columns["t"]])
+        check_time(where, t, rows[-1][0] if rows else None)
+        q = np.array([_number(where, j, cells[columns[j]]) for j in arm_joints])
+        g = _number(where, "gripper", cells[columns["gripper"]])
+        if not 0.0 <= g <= 1.0:
+            raise DemoError(where, f"'gripper' must be within 0 (open) .. 1 (closed), got {g:g}")
+        rows.append((t, q, g))
+    if columns is None:
+        raise DemoError(path, "empty file: expected a header row (t, joint names, gripper)")
+    close()
+    if not tracks:
+        raise DemoError(path, "no samples after the header row")
+    return tracks
+
+
+def _header(where: str, cells: list[str], arm_joints: tuple[str, ...]) -> dict[str, int]:
+    columns = {name: i for i, name in enumerate(cells)}
+    if len(columns) != len(cells):
+        raise DemoError(where, "header names a column twice")
+    need = ["t", *arm_joints, "gripper"]
+    missing = [c for c in need if c not in columns]
+    if missing:
+        raise DemoError(where, f"header lacks column(s) {', '.join(missing)} (needs t, {', '.join(arm_joints)}, gripper; "
+                               f"optional episode_seed)")
+    unknown = sorted(set(columns) - set(need) - {"episode_seed"})
+    if unknown:
+        raise DemoError(where, f"unknown column(s) {', '.join(unknown)}")
+    return columns
+
+
+def _number(where: str, name: str, raw: str) -> float:
+    try:
+        v = float(raw)
+    except ValueError:
+        raise DemoError(where, f"'{name}' is not a number: {raw!r}") from None
+    if not math.isfinite(v):
+        raise DemoError(where, f"'{name}' is not finite ({raw})")
+    return v
+
+
+def resample_joints(track: JointTrack, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """(q [K, n], gripper [K]) at ``t0 + k / fps``: linear for joints, latest sample for the gripper."""
+    t = track.t - track.t[0]
+    k = int(math.floor(t[-1] * fps + 1e-9)) + 1
+    tk = np.arange(k) / fps
+    q = np.stack([np.interp(tk, t, track.q[:, j]) for j in range(track.q.shape[1])], axis=1)
+    i = np.clip(np.searchsorted(t, tk + 1e-9, side="right") - 1, 0, len(t) - 1)
+    return q, track.gripper[i]
+
+
+def kinesthetic_episode(env: Any, track: JointTrack, seed: int) -> tuple[Any, np.ndarray, np.ndarray]:
+    """Play one joint track from ``env.reset(seed)``: (Episode, ik_ok [T,1], ik_error [T,2])."""
+    q, grip = resample_joints(track, env.fps)
+    m = env.model
+    rng = m.jnt_range[[m.joint(j).id for j in env.robot.arm_joints]]
+    lo, hi = rng[:, 0], rng[:, 1]
+    env.reset(seed)
+    env.set_arm(q[0])
+    last = len(q) - 1
+    ok: list[bool] = []
+    err: list[tuple[float, float]] = []
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        target = q[min(t + 1, last)]
+        clipped = np.clip(target, lo, hi)
+        excess = float(np.max(np.abs(target - clipped)))
+        ok.append(excess <= LIMIT_TOL)
+        err.append((0.0, excess))
+        command = np.empty(len(target) + 1, dtype=np.float32)
+        command[:-1] = clipped
+        command[-1] = grip[min(t, last)]
+        return StepCommand(executed=command, label=command.copy(), ee_target=None)
+
+    episode = rollout(env, seed, act, reset=False, max_steps=len(q) + int(round(TAIL_S * env.fps)))
+    return episode, np.array(ok, dtype=bool)[:, None], np.array(err, dtype=np.float32)
+
+
+def collect_kinesthetic(
+    task: str,
+    input_csv: str | Path,
+    out: str | Path,
+    seed: int = 0,
+    *,
+    operator: str | None = None,
+    robot: str | None = None,
+    task_options: dict[str, Any] | None = None,
+    cameras: tuple[tuple[str, int, int], ...] = (),
+    append: bool = False,
+    overwrite: bool = False,
+    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+) -> HumanCollectResult:
+    """Play every episode of a joint CSV through the simulator into the store at ``out``."""
+    arm_joints = load_robot(robot).arm_joints
+    tracks = parse_joint_csv(input_csv, arm_joints)
+    config = HumanConfig(
+        task=task, source="kinesthetic", input=str(input_csv), seed=seed, operator=operator, robot=robot,
+        task_options=dict(task_options or {}), cameras=tuple(cameras), settings={"lookahead_steps": 1},
+    )
+
+    def run(env: Any, index: int, count: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        track = tracks[index]
+        s = reset_seed(track.episode, seed, index)
+        episode, ik_ok, ik_err = kinesthetic_episode(env, track, s)
+        data = dict(episode.data)
+        data["info.ik_ok"], data["info.ik_error"] = ik_ok, ik_err
+        return data, episode_info(config, track.episode, s, episode.success, episode.first_success_step, ik_ok)
+
+    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, on_episode=on_episode)

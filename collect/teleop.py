@@ -1,0 +1,350 @@
+"""`demo teleop`: live teleoperation in the browser (viser), recorded into a store.
+
+The page shows the task scene (drawn by :class:`demo.view.scene.MujocoScene`), a transform gizmo
+and a panel with **Start** (reset to the next episode's initial state and record), **Stop & save**,
+**Discard**, **Open gripper** / **Close gripper** and a status line. The simulation runs in real
+time at the control rate in a background thread.
+
+Modes:
+
+- ``vr``: the gizmo is the tracked hand, already in the robot's frame (what ``collect_vr`` gets
+  after calibration and scaling); :class:`demo.collect.retarget.Retargeter` (mink or placo) turns
+  it into joint targets every control step. Unreached hand poses are flagged (``info.ik_ok``) and
+  shown in the status line.
+- ``kinesthetic``: the arm is backdrivable: gravity is compensated (the robot's gravcomp), the arm
+  servos are softened (gains times ``soft_gain``) and re-targeted to the measured joints every
+  physics step, so they only damp, and a damped spring (``spring_*``) pulls the EE site toward
+  the gizmo, the point the person drags. The recorded action is the configuration the arm reached
+  one control step later (the label ``collect_kinesthetic`` uses).
+
+Episodes are stored like ``collect_kinesthetic`` / ``collect_vr`` episodes (same keys, ``source``
+= the mode, ``operator``, ``unreachable_frames``), each appended atomically on **Stop & save**.
+The server listens on 127.0.0.1 unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from demo.collect.human import HumanConfig, InputEpisode, episode_info, human_store_meta, open_human_output
+from demo.collect.retarget import IK_BACKENDS, Retargeter
+from demo.collect.scripted import episode_seed, make_env_for
+from demo.errors import DemoError
+from demo.sim.geometry import quat_conj, quat_mul
+
+MODES = ("kinesthetic", "vr")
+CAMERA_EYE, CAMERA_LOOK_AT = (1.15, -0.85, 0.7), (0.4, 0.0, 0.15)  # base frame, m
+
+
+@dataclass
+class TeleopConfig:
+    mode: str = "vr"
+    task: str = "pick"
+    out: str | None = None  # store to append episodes to (created if missing); None: nothing saved
+    seed: int = 0  # episode i starts from env.reset(episode_seed(seed, i))
+    operator: str = "human"
+    robot: str | None = None
+    task_options: dict[str, Any] = field(default_factory=dict)
+    ik: str = "mink"
+    host: str = "127.0.0.1"
+    port: int = 8080  # 0: any free port
+    max_episode_s: float = 120.0  # recording stops (and is kept) after this long
+    soft_gain: float = 0.01  # kinesthetic: arm servo stiffness factor (damping scales with its sqrt)
+    spring_stiffness: float = 400.0  # N/m, gizmo -> EE site
+    spring_damping: float = 60.0  # N s/m
+    spring_rot_stiffness: float = 8.0  # N m/rad
+    spring_rot_damping: float = 0.8  # N m s/rad
+    verbose: bool = False
+
+
+class TeleopSession:
+    """A live teleoperation page and its simulation. ``close()`` stops both (and saves nothing)."""
+
+    def __init__(self, config: TeleopConfig, *, run_thread: bool = True):
+        import viser
+
+        from demo.view.scene import MujocoScene
+
+        if config.mode not in MODES:
+            raise DemoError("--mode", f"unknown mode {config.mode!r} (choose from {', '.join(MODES)})")
+        if config.ik not in IK_BACKENDS:
+            raise DemoError("--ik", f"unknown IK backend {config.ik!r} (choose from {', '.join(IK_BACKENDS)})")
+        self.config = config
+        self.human = HumanConfig(
+            task=config.task, source=config.mode, input="teleop", seed=config.seed, operator=config.operator,
+            robot=config.robot, task_options=dict(config.task_options),
+            settings={"ik": config.ik} if config.mode == "vr" else {"soft_gain": config.soft_gain},
+        )
+        self.env = make_env_for(self.human.collect_config())
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self.store = None
+        self.server = None
+        self._thread: threading.Thread | None = None
+        try:
+            if config.out is not None:
+                self.store = open_human_output(Path(config.out), human_store_meta(self.human, self.env), True, False)
+            self.retargeter = Retargeter(self.env, config.ik) if config.mode == "vr" else None
+            if config.mode == "kinesthetic":
+                self._soften_arm(config.soft_gain)
+            self.episode_index = 0
+            self.saved = 0
+            self.grip = 0.0
+            self.recording = False
+            self._frames: list[dict[str, np.ndarray]] = []
+            self._ok: list[bool] = []
+            self._err: list[tuple[float, float]] = []
+            self._first_success: int | None = None
+            self.last_ok = True
+            self.status_note = ""
+            self._reset_episode()
+            with _quiet(not config.verbose):
+                self.server = viser.ViserServer(host=config.host, port=config.port, label=f"demo teleop ({config.mode})",
+                                                verbose=config.verbose)
+            self.scene = MujocoScene(self.server.scene, self.env.model)
+            self._build_page()
+            self._show()
+        except BaseException:
+            self.close()
+            raise
+        if run_thread:
+            self._thread = threading.Thread(target=self._run, name="demo-teleop-sim", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ page
+    def _build_page(self) -> None:
+        server = self.server
+        pos, quat = self._ee_world()
+        self.gizmo = server.scene.add_transform_controls(
+            "/hand", scale=0.18, position=pos, wxyz=quat, depth_test=False, disable_rotations=self.config.mode == "kinesthetic"
+        )
+        self.gizmo.on_update(lambda event: self._on_gizmo())
+        # Over the table from the front-right, like the sim's "front" camera but closer.
+        server.initial_camera.position = tuple(self.env.to_world(np.array(CAMERA_EYE)))
+        server.initial_camera.look_at = tuple(self.env.to_world(np.array(CAMERA_LOOK_AT)))
+        gui = server.gui
+        gui.add_markdown(f"**demo teleop**: {self.config.mode}, task {self.config.task}")
+        self.buttons = {
+            "start": gui.add_button("Start"),
+            "stop": gui.add_button("Stop & save"),
+            "discard": gui.add_button("Discard"),
+            "open": gui.add_button("Open gripper"),
+            "close": gui.add_button("Close gripper"),
+        }
+        for name, button in self.buttons.items():
+            button.on_click(lambda event, name=name: self.press(name))
+        self.status = gui.add_markdown(self._status_text())
+
+    def _on_gizmo(self) -> None:
+        with self._lock:
+            self._hand_world = (np.array(self.gizmo.position, dtype=np.float64), np.array(self.gizmo.wxyz, dtype=np.float64))
+
+    def _status_text(self) -> str:
+        state = f"recording, frame {len(self._frames)}" if self.recording else "idle (press Start to record)"
+        ik = "" if self.config.mode != "vr" else (" · hand reached" if self.last_ok else " · **hand pose unreachable**")
+        note = f" · {self.status_note}" if self.status_note else ""
+        return f"episode {self.episode_index} · {state} · saved {self.saved}{ik}{note}"
+
+    def _show(self) -> None:
+        self.scene.show(self.env.get_state())
+        self.status.content = self._status_text()
+
+    # ------------------------------------------------------------------ controls (thread-safe)
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.server.get_port()}"
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+    def press(self, name: str) -> None:
+        """What a button does: start, stop (save), discard, open, close."""
+        with self._lock:
+            if name == "start":
+                self.episode_index += int(self.recording or self._frames != [])
+                self._reset_episode()
+                self.recording = True
+                self.status_note = ""
+            elif name == "stop":
+                self._finish(save=True)
+            elif name == "discard":
+                self._finish(save=False)
+            elif name in ("open", "close"):
+                self.grip = 1.0 if name == "close" else 0.0
+            else:
+                raise ValueError(f"unknown control {name!r}")
+
+    def set_hand(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Move the hand (the gizmo) to a pose in the robot base frame (m, wxyz)."""
+        world = (self.env.to_world(np.asarray(pos, dtype=np.float64)), self.env.quat_to_world(np.asarray(quat, dtype=np.float64)))
+        with self._lock:
+            self._hand_world = world
+            self.gizmo.position, self.gizmo.wxyz = world
+
+    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Measured EE pose, base frame."""
+        with self._lock:
+            pos, quat = self.env.ee_pose()
+            return pos.copy(), quat.copy()
+
+    # ------------------------------------------------------------------ episodes
+    def _reset_episode(self) -> None:
+        env = self.env
+        self.seed = episode_seed(self.config.seed, self.episode_index)
+        env.reset(self.seed)
+        self.grip = float(env.robot.home_gripper)
+        self._frames, self._ok, self._err, self._first_success = [], [], [], None
+        if self.retargeter is not None:
+            self.retargeter.reset()
+        self._hand_world = self._ee_world()
+        if getattr(self, "gizmo", None) is not None:
+            self.gizmo.position, self.gizmo.wxyz = self._hand_world
+
+    def _finish(self, save: bool) -> None:
+        if not self.recording and not self._frames:
+            return
+        self.recording = False
+        if save and self._frames and self.store is not None:
+            data = {k: np.stack([f[k] for f in self._frames]) for k in self._frames[0]}
+            ok = np.array(self._ok, dtype=bool)[:, None]
+            data["info.ik_ok"], data["info.ik_error"] = ok, np.array(self._err, dtype=np.float32)
+            info = episode_info(self.human, InputEpisode(-1, self.seed, None), self.seed, self.env.success(),
+                                self._first_success, ok)
+            self.store.append_episode(data, **info)
+            self.saved += 1
+            self.status_note = f"saved episode ({len(self._frames)} frames, success {info['success']})"
+        else:
+            self.status_note = "discarded" if not save else "nothing saved (no --out)"
+        self.episode_index += 1
+        self._reset_episode()
+
+    # ------------------------------------------------------------------ simulation
+    def _ee_world(self) -> tuple[np.ndarray, np.ndarray]:
+        pos, quat = self.env.ee_pose()
+        return self.env.to_world(pos), self.env.quat_to_world(quat)
+
+    def _soften_arm(self, factor: float) -> None:
+        m, acts = self.env.model, self.env.arm_act
+        # Position servo: force = kp (target - q) - kv qdot; bias = [0, -kp, -kv].
+        m.actuator_gainprm[acts, 0] *= factor
+        m.actuator_biasprm[acts, 1] *= factor
+        m.actuator_biasprm[acts, 2] *= np.sqrt(factor)
+
+    def step(self) -> None:
+        """One control step: command from the hand, physics, recording, page update."""
+        with self._lock:
+            env = self.env
+            frame = env.frame() if self.recording else None
+            hand_pos, hand_quat = self._hand_base()
+            if self.config.mode == "vr":
+                r = self.retargeter(hand_pos, hand_quat)
+                command = np.r_[r.q, self.grip].astype(np.float32)
+                env.step(command)
+                label, ok, err = command, r.ok, (r.pos_err, r.rot_err)
+                self.last_ok = r.ok
+            else:
+                self._drag_step()
+                label = np.r_[env.data.qpos[env.arm_qadr], self.grip].astype(np.float32)
+                ok, err = True, (0.0, 0.0)
+            if frame is not None:
+                frame["action"] = label
+                frame["info.executed_action"] = label
+                frame["info.ee_target"] = np.r_[hand_pos, hand_quat].astype(np.float32)
+                self._frames.append(frame)
+                self._ok.append(ok)
+                self._err.append(err)
+                if self._first_success is None and env.success():
+                    self._first_success = len(self._frames)
+                if len(self._frames) >= int(self.config.max_episode_s * env.fps):
+                    self.status_note = "reached the episode length limit"
+                    self._finish(save=True)
+            self._show()
+
+    def _hand_base(self) -> tuple[np.ndarray, np.ndarray]:
+        pos_w, quat_w = self._hand_world
+        base = self.env.base
+        return base.rot.T @ (pos_w - base.pos), quat_mul(quat_conj(base.quat), quat_w)
+
+    def _drag_step(self) -> None:
+        """Physics of one control step with the arm backdriven by a spring from the gizmo."""
+        env, cfg = self.env, self.config
+        m, d = env.model, env.data
+        target_p, target_q = self._hand_world
+        jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        dofs = env.arm_dadr
+        n_sub, env.n_substeps = env.n_substeps, 1
+        try:
+            for _ in range(n_sub):
+                mujoco.mj_jacSite(m, d, jacp, jacr, env.ee_site)
+                v = jacp @ d.qvel
+                w = jacr @ d.qvel
+                force = cfg.spring_stiffness * (target_p - d.site_xpos[env.ee_site]) - cfg.spring_damping * v
+                current = np.empty(4)
+                mujoco.mju_mat2Quat(current, d.site_xmat[env.ee_site])
+                err = quat_mul(target_q, quat_conj(current))
+                if err[0] < 0:
+                    err = -err
+                rotvec = np.zeros(3)
+                mujoco.mju_quat2Vel(rotvec, err, 1.0)
+                torque = cfg.spring_rot_stiffness * rotvec - cfg.spring_rot_damping * w
+                d.qfrc_applied[:] = 0.0
+                d.qfrc_applied[dofs] = jacp[:, dofs].T @ force + jacr[:, dofs].T @ torque
+                env.step(np.r_[d.qpos[env.arm_qadr], self.grip])
+        finally:
+            env.n_substeps = n_sub
+            d.qfrc_applied[:] = 0.0
+
+    def _run(self) -> None:
+        dt = 1.0 / self.env.fps
+        next_t = time.perf_counter()
+        while not self._stop.is_set():
+            try:
+                self.step()
+            except Exception as exc:  # keep the page alive; say what went wrong
+                self.status_note = f"error: {type(exc).__name__}: {exc}"
+                with contextlib.suppress(Exception):
+                    self.status.content = self._status_text()
+            next_t += dt
+            delay = next_t - time.perf_counter()
+            if delay < -0.5:
+                next_t = time.perf_counter()  # fell behind (slow machine): do not race to catch up
+            self._stop.wait(max(0.0, delay))
+
+    def close(self) -> None:
+        """Stop the simulation and the server; an episode being recorded is discarded."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        if self.server is not None:
+            with _quiet(not self.config.verbose):
+                self.server.stop()
+            self.server = None
+        if self.store is not None:
+            self.store.close()
+            self.store = None
+        self.env.close()
+
+    def __enter__(self) -> "TeleopSession":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _quiet(enabled: bool) -> Any:
+    return contextlib.redirect_stdout(io.StringIO()) if enabled else contextlib.nullcontext()
+
+
+def serve_teleop(config: TeleopConfig) -> TeleopSession:
+    """Start a session; returns once the page is served (``session.url``)."""
+    return TeleopSession(config)
