@@ -56,19 +56,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         err_console.print("[bold red]interrupted[/] (finished episodes are kept)")
         return 130
-    except SystemExit as exc:  # typer.Exit inside commands
+    except SystemExit as exc:
         return int(exc.code or 0)
-    except Exception as exc:  # click usage errors and the unexpected
-        import click
-
-        if isinstance(exc, click.exceptions.Exit):
-            return exc.exit_code
-        if isinstance(exc, click.ClickException):
+    except typer.Exit as exc:
+        return int(exc.exit_code)
+    except typer.Abort:
+        err_console.print("[bold red]aborted[/]")
+        return 130
+    except Exception as exc:  # usage errors (they know how to show themselves) and the unexpected
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):
             exc.show()
-            return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
-            err_console.print("[bold red]aborted[/]")
-            return 130
+            return int(exc.exit_code)
         if _DEBUG:
             traceback.print_exc()
         err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc} (run with --debug for the traceback)")
@@ -77,4 +75,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from demo.cli.main import main as _main  # the registered app lives in the imported module
+
+    sys.exit(_main())
