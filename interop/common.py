@@ -1,0 +1,217 @@
+"""What every format converter shares: staged output, the report, episode-table columns, progress.
+
+Converters never write into ``--out`` directly: they build the result in a hidden sibling
+(``.NAME.tmp-PID``) and rename it into place at the end, so a failed or interrupted export/import
+leaves no half-written dataset, and an existing ``--out`` is replaced only with ``overwrite=True``
+and only when it looks like the kind of thing being written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import pyarrow as pa
+
+from demo.errors import DemoError
+from demo.store import EpisodeStore, FeatureSpec
+from demo.store.episode_table import FIXED_COLUMNS, MASK_PREFIX
+
+T = TypeVar("T")
+
+# Episode-table columns a store derives itself (from lengths and fps); never carried.
+DERIVED_COLUMNS = ("episode_index", "start", "length", "duration_s", "crc32")
+# Fixed columns passed to ``append_episodes``; every other column is restored with its arrow type.
+APPEND_COLUMNS = ("success", "seed", "source", "operator", "task")
+IMAGE_CHANNELS = (1, 3, 4)
+
+
+@dataclass
+class InteropReport:
+    """What an export or import did, for the CLI to print and tests to check."""
+
+    format: str
+    direction: str  # "export" | "import"
+    source: Path
+    path: Path
+    episodes: int = 0
+    frames: int = 0
+    files: list[str] = field(default_factory=list)
+    # Carried, but only in demo-specific metadata that the other tool ignores.
+    extras: list[str] = field(default_factory=list)
+    # What the target format cannot carry (or what could not be imported): the warning.
+    dropped: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": self.format,
+            "direction": self.direction,
+            "source": str(self.source),
+            "path": str(self.path),
+            "episodes": self.episodes,
+            "frames": self.frames,
+            "files": list(self.files),
+            "extras": list(self.extras),
+            "dropped": list(self.dropped),
+            "notes": list(self.notes),
+        }
+
+
+def is_image(spec: FeatureSpec) -> bool:
+    """Camera images: uint8 ``[H, W, C]`` with 1, 3 or 4 channels."""
+    return spec.dtype == "uint8" and len(spec.shape) == 3 and spec.shape[2] in IMAGE_CHANNELS
+
+
+def short_name(key: str) -> str:
+    """``obs.joint_pos`` -> ``joint_pos``; keys without a prefix stay as they are."""
+    return key.split(".", 1)[1] if "." in key else key
+
+
+def camera_name(key: str) -> str:
+    """``obs.image_front`` -> ``front`` (the store's camera naming convention)."""
+    name = short_name(key)
+    return name[len("image_"):] if name.startswith("image_") and len(name) > len("image_") else name
+
+
+def now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+
+
+def first_line(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.splitlines()[0][:200]
+
+
+# ---------------------------------------------------------------------------------------------- output
+def _occupied(path: Path) -> bool:
+    if path.is_dir():
+        return any(path.iterdir())
+    return path.exists() or path.is_symlink()
+
+
+@contextlib.contextmanager
+def staged_output(
+    out: Path, *, overwrite: bool, looks_like: Callable[[Path], bool], kind: str, is_dir: bool
+) -> Iterator[Path]:
+    """Yield a temporary path next to ``out``; on success it replaces ``out`` atomically-ish.
+
+    ``looks_like(out)`` guards ``overwrite``: an existing ``out`` that is not a ``kind`` is never
+    deleted. On any exception the temporary is removed and ``out`` is left untouched.
+    """
+    out = Path(out)
+    if _occupied(out):
+        if not overwrite:
+            raise DemoError(out, "already exists (pass --overwrite to replace it, or choose another --out)")
+        if not looks_like(out):
+            raise DemoError(out, f"exists and is not a {kind}; refusing to overwrite it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    _remove(tmp)
+    if is_dir:
+        tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        _remove(tmp)
+        raise
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    _remove(old)
+    if out.exists() or out.is_symlink():
+        os.replace(out, old)
+    os.replace(tmp, out)
+    _remove(old)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def check_not_same(src: Path, out: Path) -> None:
+    if Path(src).resolve() == Path(out).resolve():
+        raise DemoError(out, "is the input; write the output elsewhere")
+
+
+# ---------------------------------------------------------------------------------------------- episode table
+def carried_columns(store: EpisodeStore) -> list[tuple[str, pa.DataType]]:
+    """Per-episode columns a converter must carry (everything but the derived ones), in table order."""
+    schema = store.table.schema
+    return [(f.name, f.type) for f in schema if f.name not in DERIVED_COLUMNS]
+
+
+def append_info(row: dict[str, Any]) -> dict[str, Any]:
+    """The fixed-column part of an episode row, for ``append_episodes``."""
+    info = {k: row[k] for k in APPEND_COLUMNS if k in row and row[k] is not None}
+    return info
+
+
+def restore_columns(store: EpisodeStore, columns: Sequence[tuple[str, pa.Array]]) -> None:
+    """Set extra per-episode columns with their exact arrow types, in the given order.
+
+    ``append_episodes`` infers types from Python values; setting the columns afterwards from arrow
+    arrays keeps int32/float32/null-bearing columns exactly as they were.
+    """
+    for name, array in columns:
+        if name in FIXED_COLUMNS:
+            continue
+        if name.startswith(MASK_PREFIX):
+            array = array.fill_null(False) if array.null_count else array
+        # A list of arrow scalars: EpisodeStore.set_column rebuilds it with pa.array, type intact.
+        store.set_column(name, [array[i] for i in range(len(array))])
+
+
+def type_name(t: pa.DataType) -> str:
+    return str(t)
+
+
+def type_from_name(name: str) -> pa.DataType | None:
+    try:
+        return pa.type_for_alias(name)
+    except (ValueError, KeyError):
+        return None
+
+
+# ---------------------------------------------------------------------------------------------- progress
+def track(items: Iterable[T], total: int, description: str, enabled: bool) -> Iterator[T]:
+    """A rich progress bar on stderr when ``enabled`` (the CLI), silent otherwise (tests, library)."""
+    from demo.cli.output import err_console
+
+    if not enabled or not err_console.is_terminal:  # no bar (nor its stray newline) in logs and pipes
+        yield from items
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        console=err_console, transient=True,
+    ) as progress:
+        task = progress.add_task(description, total=total)
+        for item in items:
+            yield item
+            progress.advance(task)
+
+
+def batches(
+    items: Iterable[tuple[dict[str, np.ndarray], dict[str, Any]]], max_bytes: int = 128 * 2**20
+) -> Iterator[list[tuple[dict[str, np.ndarray], dict[str, Any]]]]:
+    """Group ``(data, info)`` episodes so each ``append_episodes`` commit holds about ``max_bytes``."""
+    batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
+    size = 0
+    for data, info in items:
+        batch.append((data, info))
+        size += sum(int(v.nbytes) for v in data.values())
+        if size >= max_bytes:
+            yield batch
+            batch, size = [], 0
+    if batch:
+        yield batch

@@ -1,0 +1,363 @@
+"""LeRobot v3.0 export/import: the folder validates against the v3.0 layout, round trips are bit-exact,
+foreign datasets import, bad input fails with one line naming the file."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+
+from demo.cli.main import main
+from demo.errors import DemoError
+from demo.interop.lerobot import export_lerobot, import_lerobot
+from demo.interop.sample import make_sample_store
+from demo.store import EpisodeStore
+
+STATS = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
+FRAME_FEATURES = {"timestamp": "float32", "frame_index": "int64", "episode_index": "int64", "index": "int64",
+                  "task_index": "int64", "next.done": "bool"}
+EPISODE_COLUMNS = ("episode_index", "tasks", "length", "data/chunk_index", "data/file_index", "dataset_from_index",
+                   "dataset_to_index")
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_sample_store(tmp_path_factory.mktemp("lr") / "s.zarr", episodes=7, seed=1)
+
+
+def assert_same_store(a: EpisodeStore, b: EpisodeStore, episodes: list[int] | None = None) -> None:
+    """Every frame of every key bit-exact (dtype too), the episode table equal, metadata equal."""
+    chosen = episodes if episodes is not None else list(range(a.num_episodes))
+    assert b.num_episodes == len(chosen)
+    assert list(b.meta.features) == list(a.meta.features)
+    for new, old in enumerate(chosen):
+        x, y = a.read_episode(old), b.read_episode(new)
+        for key in a.meta.features:
+            assert y[key].dtype == x[key].dtype, key
+            assert y[key].shape == x[key].shape, key
+            np.testing.assert_array_equal(y[key], x[key], err_msg=key)
+    if episodes is None:
+        assert b.table.equals(a.table), (a.table.schema, b.table.schema)
+    ma, mb = a.meta.to_json(), b.meta.to_json()
+    pa_, pb = ma.pop("provenance"), mb.pop("provenance")
+    assert ma == mb
+    assert pb[: len(pa_)] == pa_
+    assert [p["op"] for p in pb[len(pa_):]] == ["export", "import"]
+    assert b.verify() == []
+
+
+def validate_v30(root: Path) -> dict:
+    """Check a folder against the LeRobotDataset v3.0 layout; return info.json."""
+    info = json.loads((root / "meta/info.json").read_text())
+    for key in ("codebase_version", "fps", "robot_type", "features", "total_episodes", "total_frames", "total_tasks",
+                "chunks_size", "data_files_size_in_mb", "video_files_size_in_mb", "data_path", "video_path", "splits"):
+        assert key in info, key
+    assert info["codebase_version"] == "v3.0"
+    assert info["data_path"] == "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+    assert info["video_path"] is None
+    n_ep, n_fr = info["total_episodes"], info["total_frames"]
+    assert info["splits"] == {"train": f"0:{n_ep}"}
+    features = info["features"]
+    for name, dtype in FRAME_FEATURES.items():
+        assert features[name] == {"dtype": dtype, "shape": [1], "names": None}
+    for name, f in features.items():
+        assert set(f) == {"dtype", "shape", "names"}, name
+        if f["names"] is not None:
+            assert len(f["names"]) == (3 if f["dtype"] == "image" else f["shape"][0]), name
+
+    # data files: columns and arrow types exactly as declared
+    data_files = sorted((root / "data").glob("chunk-*/file-*.parquet"))
+    assert data_files
+    tables = []
+    for path in data_files:
+        t = pq.read_table(path)
+        assert set(t.column_names) == set(features), path
+        for name, f in features.items():
+            typ = t.schema.field(name).type
+            if f["dtype"] == "image":
+                assert typ == pa.struct([("bytes", pa.binary()), ("path", pa.string())]), name
+            elif f["shape"] == [1]:
+                assert typ == pa.from_numpy_dtype(np.dtype(f["dtype"])), name
+            else:
+                assert typ == pa.list_(pa.from_numpy_dtype(np.dtype(f["dtype"])), f["shape"][0]), name
+        tables.append(t)
+    data = pa.concat_tables(tables)
+    assert data.num_rows == n_fr
+    np.testing.assert_array_equal(data.column("index").to_numpy(), np.arange(n_fr))
+
+    # tasks
+    tasks = pq.read_table(root / "meta/tasks.parquet")
+    assert tasks.column_names == ["task_index", "task"]
+    assert json.loads(tasks.schema.metadata[b"pandas"])["index_columns"] == ["task"]
+    assert tasks.num_rows == info["total_tasks"]
+    task_of = dict(zip(tasks.column("task_index").to_pylist(), tasks.column("task").to_pylist()))
+
+    # episodes
+    episodes = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet")
+    for column in EPISODE_COLUMNS:
+        assert column in episodes.column_names, column
+    for name in features:
+        for stat in STATS:
+            assert f"stats/{name}/{stat}" in episodes.column_names, (name, stat)
+    assert episodes.num_rows == n_ep
+    np.testing.assert_array_equal(episodes.column("episode_index").to_numpy(), np.arange(n_ep))
+    lengths = episodes.column("length").to_numpy()
+    assert lengths.sum() == n_fr
+    ends = np.cumsum(lengths)
+    np.testing.assert_array_equal(episodes.column("dataset_to_index").to_numpy(), ends)
+    np.testing.assert_array_equal(episodes.column("dataset_from_index").to_numpy(), ends - lengths)
+    fps = float(info["fps"])
+    for i in range(n_ep):
+        chunk = episodes.column("data/chunk_index")[i].as_py()
+        file = episodes.column("data/file_index")[i].as_py()
+        t = pq.read_table(root / info["data_path"].format(chunk_index=chunk, file_index=file))
+        rows = t.filter(pa.compute.equal(t.column("episode_index"), i))
+        assert rows.num_rows == lengths[i]
+        frame = rows.column("frame_index").to_numpy()
+        np.testing.assert_array_equal(frame, np.arange(lengths[i]))
+        np.testing.assert_array_equal(rows.column("timestamp").to_numpy(), (frame / fps).astype(np.float32))
+        np.testing.assert_array_equal(rows.column("next.done").to_numpy(zero_copy_only=False), frame == lengths[i] - 1)
+        np.testing.assert_array_equal(rows.column("index").to_numpy(), np.arange(ends[i] - lengths[i], ends[i]))
+        task_index = set(rows.column("task_index").to_pylist())
+        assert len(task_index) == 1
+        assert episodes.column("tasks")[i].as_py() == [task_of[task_index.pop()]]
+        assert episodes.column(f"stats/action/count")[i].as_py() == [lengths[i]]
+
+    # stats.json: every feature, every stat, the dataset's count, ordered quantiles, exact moments
+    stats = json.loads((root / "meta/stats.json").read_text())
+    assert set(stats) == set(features)
+    for name, f in features.items():
+        s = {k: np.asarray(v, dtype=np.float64) for k, v in stats[name].items()}
+        assert set(s) == set(STATS), name
+        assert s["count"].tolist() == [n_fr]
+        shape = (3, 1, 1) if f["dtype"] == "image" else (f["shape"][0],)
+        for stat in STATS[:4] + STATS[5:]:
+            assert s[stat].shape == shape, (name, stat)
+        chain = [s["min"], s["q01"], s["q10"], s["q50"], s["q90"], s["q99"], s["max"]]
+        for lo, hi in zip(chain, chain[1:]):
+            assert np.all(lo <= hi + 1e-12), name
+        if f["dtype"] != "image":
+            col = data.column(name).combine_chunks()
+            values = (col.flatten() if pa.types.is_fixed_size_list(col.type) else col).to_numpy(zero_copy_only=False)
+            values = values.astype(np.float64).reshape(n_fr, -1)
+            np.testing.assert_array_equal(s["min"], values.min(0))
+            np.testing.assert_array_equal(s["max"], values.max(0))
+            np.testing.assert_allclose(s["mean"], values.mean(0), rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(s["std"], values.std(0), rtol=1e-7, atol=1e-12)
+    return info
+
+
+def test_export_validates_against_v30_layout(sample: Path, tmp_path: Path) -> None:
+    report = export_lerobot(sample, tmp_path / "lr")
+    info = validate_v30(tmp_path / "lr")
+    store = EpisodeStore.open(sample)
+    assert info["total_episodes"] == store.num_episodes == report.episodes
+    assert info["total_frames"] == store.num_frames == report.frames
+    assert info["total_tasks"] == 2 and info["fps"] == 20 and info["robot_type"] == "panda_prim"
+    features = info["features"]
+    # float32 obs.* concatenated into observation.state, in feature order, split recorded in names
+    assert features["observation.state"]["shape"] == [7 + 3 + 1 + 6]
+    assert features["observation.state"]["names"][:8] == [f"joint_pos.j{i}" for i in range(7)] + ["ee_pos.0"]
+    # other obs keep their dtype under their store name (LeRobot policies read every observation* key)
+    assert features["obs.goal64"]["dtype"] == "float64" and features["obs.contacts"]["dtype"] == "int16"
+    assert features["obs.grasped"] == {"dtype": "bool", "shape": [1], "names": None}
+    assert [k for k in features if k.startswith("observation")] == ["observation.state", "observation.images.front"]
+    assert features["observation.images.front"] == {"dtype": "image", "shape": [12, 10, 3],
+                                                   "names": ["height", "width", "channels"]}
+    assert features["sim.state"]["dtype"] == "float64" and features["info.ee_target"]["shape"] == [7]
+    assert features["action"]["names"] == list(store.meta.action.names)
+    # the data really is there: state slice, PNG image, sim.state of episode 2
+    episodes = pq.read_table(tmp_path / "lr/meta/episodes/chunk-000/file-000.parquet")
+    start = episodes.column("dataset_from_index")[2].as_py()
+    data = pq.read_table(tmp_path / "lr/data/chunk-000/file-000.parquet")
+    ep = store.read_episode(2)
+    row = data.slice(start, 1)
+    state = np.asarray(row.column("observation.state")[0].as_py(), dtype=np.float32)
+    np.testing.assert_array_equal(state[7:10], ep["obs.ee_pos"][0])
+    png = row.column("observation.images.front")[0].as_py()["bytes"]
+    np.testing.assert_array_equal(np.asarray(Image.open(io.BytesIO(png))), ep["obs.image_front"][0])
+    np.testing.assert_array_equal(np.asarray(row.column("sim.state")[0].as_py()), ep["sim.state"][0])
+    # what LeRobot has no place for is kept under "demo", and per-episode columns as demo/<column>
+    assert info["demo"]["store_meta"]["action"]["name"] == "ee7"
+    assert "demo/mask.train" in episodes.column_names and "demo/score.jerk" in episodes.column_names
+    assert any("ee7" in item for item in report.extras)
+    assert report.dropped == []
+
+
+def test_round_trip_is_bit_exact(sample: Path, tmp_path: Path) -> None:
+    export_lerobot(sample, tmp_path / "lr")
+    report = import_lerobot(tmp_path / "lr", tmp_path / "back.zarr")
+    assert report.dropped == []
+    assert_same_store(EpisodeStore.open(sample), EpisodeStore.open(tmp_path / "back.zarr"))
+
+
+def test_many_data_files_and_subset(sample: Path, tmp_path: Path) -> None:
+    store = EpisodeStore.open(sample)
+    export_lerobot(sample, tmp_path / "lr", episodes="train", data_file_mb=0.001)
+    info = validate_v30(tmp_path / "lr")
+    chosen = [int(i) for i in store.select("train")]
+    assert info["total_episodes"] == len(chosen) < store.num_episodes
+    assert len(list((tmp_path / "lr/data").glob("chunk-*/file-*.parquet"))) == len(chosen)  # one per episode here
+    assert info["demo"]["source_episodes"] == chosen
+    import_lerobot(tmp_path / "lr", tmp_path / "back.zarr")
+    back = EpisodeStore.open(tmp_path / "back.zarr")
+    assert_same_store(store, back, chosen)
+    assert back.mask("train").all() and back.column("seed").tolist() == store.column("seed")[chosen].tolist()
+
+
+def test_cli_export_import(sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["export", str(sample), "--format", "lerobot", "--out", str(tmp_path / "lr")]) == 0
+    out = capsys.readouterr().out
+    assert "exported 7 episodes" in out and "meta/info.json" in out
+    assert main(["import", str(tmp_path / "lr"), "--out", str(tmp_path / "b.zarr"), "--json", "-"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["format"] == "lerobot" and report["episodes"] == 7
+    assert EpisodeStore.open(tmp_path / "b.zarr").num_frames == EpisodeStore.open(sample).num_frames
+
+
+def write_foreign_dataset(root: Path, locate: bool = True) -> None:
+    """A small v3.0 dataset as LeRobot writes it (no demo metadata, variable-size list columns)."""
+    (root / "meta/episodes/chunk-000").mkdir(parents=True)
+    (root / "data/chunk-000").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    lengths = [4, 6]
+    n = sum(lengths)
+    images = rng.integers(0, 256, size=(n, 4, 5, 3), dtype=np.uint8)
+
+    def png(a: np.ndarray) -> bytes:
+        buf = io.BytesIO()
+        Image.fromarray(a).save(buf, format="PNG")
+        return buf.getvalue()
+
+    episode = np.repeat([0, 1], lengths)
+    frame = np.concatenate([np.arange(k) for k in lengths])
+    data = pa.table({
+        "observation.state": pa.array(rng.normal(size=(n, 3)).astype(np.float32).tolist(), pa.list_(pa.float32())),
+        "action": pa.array(rng.normal(size=(n, 2)).tolist(), pa.list_(pa.float64())),
+        "observation.images.cam": pa.StructArray.from_arrays(
+            [pa.array([png(im) for im in images], pa.binary()), pa.array([None] * n, pa.string())], names=["bytes", "path"]),
+        "next.reward": pa.array(rng.random(n).astype(np.float32)),
+        "language": pa.array(["pick it"] * n),
+        "timestamp": pa.array((frame / 10).astype(np.float32)),
+        "frame_index": pa.array(frame), "episode_index": pa.array(episode), "index": pa.array(np.arange(n)),
+        "task_index": pa.array(episode), "next.done": pa.array(frame == np.repeat(lengths, lengths) - 1),
+    })
+    pq.write_table(data, root / "data/chunk-000/file-000.parquet")
+    episodes = {"episode_index": [0, 1], "tasks": [["pick"], ["place"]], "length": lengths}
+    if locate:
+        episodes.update({"data/chunk_index": [0, 0], "data/file_index": [0, 0], "dataset_from_index": [0, 4],
+                         "dataset_to_index": [4, 10]})
+    pq.write_table(pa.table(episodes), root / "meta/episodes/chunk-000/file-000.parquet")
+    pq.write_table(pa.table({"task_index": [0, 1], "__index_level_0__": ["pick", "place"]}), root / "meta/tasks.parquet")
+    features = {
+        "observation.state": {"dtype": "float32", "shape": [3], "names": ["x", "y", "z"]},
+        "action": {"dtype": "float64", "shape": [2], "names": {"motors": ["m0", "m1"]}},
+        "observation.images.cam": {"dtype": "image", "shape": [4, 5, 3], "names": ["height", "width", "channels"]},
+        "next.reward": {"dtype": "float32", "shape": [1], "names": None},
+        "language": {"dtype": "string", "shape": [1], "names": None},
+        **{k: {"dtype": v, "shape": [1], "names": None} for k, v in FRAME_FEATURES.items()},
+    }
+    info = {"codebase_version": "v3.0", "robot_type": "so100", "fps": 10, "features": features, "total_episodes": 2,
+            "total_frames": n, "total_tasks": 2, "chunks_size": 1000, "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"}
+    (root / "meta/info.json").write_text(json.dumps(info))
+    np.save(root / "images.npy", images)
+
+
+@pytest.mark.parametrize("locate", [True, False])
+def test_import_foreign_dataset(tmp_path: Path, locate: bool) -> None:
+    write_foreign_dataset(tmp_path / "ds", locate)
+    report = import_lerobot(tmp_path / "ds", tmp_path / "s.zarr")
+    store = EpisodeStore.open(tmp_path / "s.zarr")
+    assert store.num_episodes == 2 and store.episode_lengths.tolist() == [4, 6] and store.meta.fps == 10.0
+    assert set(store.meta.features) == {"action", "obs.state", "obs.image_cam", "info.reward"}
+    assert store.meta.action.name == "unknown" and store.meta.action.names == ("m0", "m1")
+    assert store.meta.robot == {"name": "so100"}
+    assert store.column("task").tolist() == ["pick", "place"]
+    images = np.load(tmp_path / "ds/images.npy")
+    np.testing.assert_array_equal(store.read_episode(1)["obs.image_cam"], images[4:])
+    table = pq.read_table(tmp_path / "ds/data/chunk-000/file-000.parquet")
+    np.testing.assert_array_equal(store.read_episode(0)["obs.state"],
+                                  np.asarray(table.column("observation.state").to_pylist()[:4], dtype=np.float32))
+    assert any("language" in d for d in report.dropped) and any("float64" in d for d in report.dropped)
+
+
+@pytest.mark.parametrize("case", ["not_dataset", "v21", "mismatched", "corrupted", "total_frames", "stray_rows"])
+def test_bad_input_one_line_error(case: str, sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    root = tmp_path / "lr"
+    if case == "not_dataset":
+        root.mkdir()
+        (root / "readme.txt").write_text("hello")
+        expected = (root, "not a LeRobot dataset")
+    else:
+        export_lerobot(sample, root, data_file_mb=0.001)
+        info_path = root / "meta/info.json"
+        if case == "v21":
+            info = json.loads(info_path.read_text())
+            info["codebase_version"] = "v2.1"
+            info_path.write_text(json.dumps(info))
+            (root / "meta/episodes.jsonl").write_text("{}\n")
+            expected = (info_path, "unsupported LeRobot dataset version 'v2.1'")
+        elif case == "mismatched":
+            path = root / "meta/episodes/chunk-000/file-000.parquet"
+            t = pq.read_table(path)
+            lengths = t.column("length").to_numpy().copy()
+            lengths[0] += 1
+            lengths[1] -= 1  # totals still agree: only the data file can tell
+            pq.write_table(t.set_column(t.column_names.index("length"), "length", pa.array(lengths)), path)
+            expected = (root / "data/chunk-000/file-000.parquet", "mismatched lengths")
+        elif case == "corrupted":
+            path = root / "data/chunk-000/file-002.parquet"
+            path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])  # a crash mid-write
+            expected = (path, "corrupted parquet")
+        elif case == "total_frames":
+            info = json.loads(info_path.read_text())
+            info["total_frames"] += 1
+            info_path.write_text(json.dumps(info))
+            expected = (info_path, "total_frames")
+        else:  # frames of an episode that meta/episodes does not list
+            path = root / "data/chunk-000/file-001.parquet"
+            t = pq.read_table(path)
+            stray = t.slice(0, 2)
+            stray = stray.set_column(stray.column_names.index("episode_index"), "episode_index", pa.array([99, 99]))
+            pq.write_table(pa.concat_tables([t, stray]), path)
+            expected = (root / "data", "mismatched lengths")
+    out = tmp_path / "out.zarr"
+    with pytest.raises(DemoError) as err:
+        import_lerobot(root, out)
+    assert err.value.where == str(expected[0]) and expected[1] in err.value.problem
+    assert not out.exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    capsys.readouterr()
+    assert main(["import", str(root), "--format", "lerobot", "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.strip().count("\n") == 0 and captured.err.startswith("error: ")
+    assert "Traceback" not in captured.err
+
+
+def test_existing_out_is_never_clobbered(sample: Path, tmp_path: Path) -> None:
+    export_lerobot(sample, tmp_path / "lr")
+    before = (tmp_path / "lr/meta/info.json").read_text()
+    with pytest.raises(DemoError, match="already exists"):
+        export_lerobot(sample, tmp_path / "lr", episodes="valid")
+    assert (tmp_path / "lr/meta/info.json").read_text() == before
+    report = export_lerobot(sample, tmp_path / "lr", episodes="valid", overwrite=True)
+    assert json.loads((tmp_path / "lr/meta/info.json").read_text())["total_episodes"] == report.episodes < 7
+    # --overwrite never deletes something that is not a LeRobot dataset
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine/notes.txt").write_text("keep me")
+    with pytest.raises(DemoError, match="not a LeRobot dataset"):
+        export_lerobot(sample, tmp_path / "mine", overwrite=True)
+    assert (tmp_path / "mine/notes.txt").read_text() == "keep me"
+    # import: an existing store is kept unless --overwrite
+    shutil.copytree(sample, tmp_path / "copy.zarr")
+    with pytest.raises(DemoError, match="already exists"):
+        import_lerobot(tmp_path / "lr", tmp_path / "copy.zarr")
+    assert EpisodeStore.open(tmp_path / "copy.zarr").num_episodes == 7
+    import_lerobot(tmp_path / "lr", tmp_path / "copy.zarr", overwrite=True)
+    assert EpisodeStore.open(tmp_path / "copy.zarr").num_episodes == report.episodes

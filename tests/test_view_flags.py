@@ -1,0 +1,32 @@
+"""Curation flags as the viewer shows them next to each episode."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from demo.interop.sample import make_sample_store
+from demo.store import EpisodeStore
+from demo.view.flags import EpisodeFlags
+
+
+def test_labels_details_and_table(tmp_path: Path) -> None:
+    store = EpisodeStore.open(make_sample_store(tmp_path / "s.zarr", episodes=9, seed=3))
+    flags = EpisodeFlags(store)
+    labels = flags.labels()
+    assert len(labels) == 9 and len(set(labels)) == 9
+    for i, label in enumerate(labels):
+        assert label.startswith(f"{i}: ")
+        assert ("ok" in label) == bool(store.column("success")[i])
+        assert f"{store.episode_lengths[i]}f" in label
+        assert ("train" in label) == bool(store.mask("train")[i]) and ("valid" in label) == bool(store.mask("valid")[i])
+        assert "empty" not in label
+    details = flags.details(3)
+    assert "Episode 3" in details and "valid ✔" in details and "train ✘" in details
+    assert f"jerk = {store.column('score.jerk')[3]:.3g}" in details
+    table = flags.table(around=8, rows=4)
+    rows = [line for line in table.splitlines() if line.startswith("| ") and not line.startswith("| ep")]
+    assert [r.split("|")[1].strip() for r in rows] == ["5", "6", "7", "**8**"]
+    assert "episodes 5-8 of 9" in table
+    assert np.array_equal(flags.masks["empty"], np.zeros(9, bool))
