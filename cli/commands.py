@@ -14,6 +14,7 @@ from demo.cli import curate  # noqa: F401,E402
 from demo.cli import convert  # noqa: F401,E402
 from demo.cli import diffusion  # noqa: F401,E402  (bench infer)
 from demo.cli import teleop  # noqa: F401,E402  (teleop, bench retarget)
+from demo.cli import train, eval  # noqa: F401,E402  (train, eval, bench train)
 
 NOT_BUILT = {
     "collect": ("Record demonstrations (scripted, kinesthetic, vr).", 3),

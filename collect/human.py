@@ -22,7 +22,7 @@ Input files are parsed completely before the store is opened, so a bad line chan
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from demo.collect.retarget import retarget_features
-from demo.collect.scripted import CollectConfig, CollectResult, episode_seed, make_env_for, store_meta
+from demo.collect.scripted import CollectConfig, CollectResult, episode_seed, make_env_for, open_output, store_meta
 from demo.errors import DemoError
-from demo.store import EpisodeStore, StoreMeta
+from demo.store import StoreMeta
 
 HUMAN_SOURCES = ("kinesthetic", "vr")
 DEFAULT_OPERATOR = "human"
@@ -91,31 +91,6 @@ def human_store_meta(config: HumanConfig, env: Any) -> StoreMeta:
     return meta
 
 
-def open_human_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
-    """Create the store, or open it to append after checking it records the same thing."""
-    if append and out.exists():
-        store = EpisodeStore.open(out, "a")
-        have, want = store.meta, meta
-        mismatch = [
-            name
-            for name, a, b in [
-                ("task", (have.task or {}).get("name"), (want.task or {}).get("name")),
-                ("task options", (have.task or {}).get("options"), (want.task or {}).get("options")),
-                ("robot", have.robot, want.robot),
-                ("features", {k: v.to_json() for k, v in have.features.items()},
-                 {k: v.to_json() for k, v in want.features.items()}),
-                ("action", have.action.to_json(), want.action.to_json()),
-            ]
-            if a != b
-        ]
-        if mismatch:
-            store.close()
-            raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
-        store.update_meta(provenance=[*have.provenance, *want.provenance])
-        return store
-    return EpisodeStore.create(out, meta, overwrite=overwrite)
-
-
 EpisodeRunner = Callable[[Any, int, int], tuple[dict[str, np.ndarray], dict[str, Any]]]
 
 
@@ -128,18 +103,23 @@ def record_episodes(
     append: bool = False,
     overwrite: bool = False,
     on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+    on_start: Callable[[int], None] | None = None,
 ) -> HumanCollectResult:
     """Run ``run_episode(env, index, count)`` for every input episode and append each to ``out``.
 
     ``run_episode`` returns ``(data, info)`` as ``store.append_episode`` takes them.
+    ``on_start(count)`` is called once the store is open (e.g. to size a progress bar),
+    ``on_episode(index, info, length)`` after each episode is committed.
     """
     out = Path(out)
     env = make_env_for(config.collect_config())
     start = time.perf_counter()
     successes = frames = unreachable = 0
     try:
-        store = open_human_output(out, human_store_meta(config, env), append, overwrite)
+        store = open_output(out, human_store_meta(config, env), append, overwrite)
         try:
+            if on_start:
+                on_start(count)
             for index in range(count):
                 data, info = run_episode(env, index, count)
                 store.append_episode(data, **info)
@@ -152,7 +132,8 @@ def record_episodes(
             store.close()
     finally:
         env.close()
-    return HumanCollectResult(str(out), count, successes, frames, time.perf_counter() - start, {}, unreachable)
+    return HumanCollectResult(path=str(out), episodes=count, successes=successes, frames=frames,
+                              seconds=time.perf_counter() - start, modes={}, unreachable_frames=unreachable)
 
 
 def episode_info(
@@ -206,7 +187,3 @@ def check_time(where: str, t: float, previous: float | None) -> None:
 def _short(value: Any, limit: int = 60) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def fixed_names(names: Sequence[str]) -> str:
-    return ", ".join(names)

@@ -10,9 +10,11 @@ every joint but the arm's. One iteration solves, like mink's:
 - JointsTask toward the home configuration (the posture task), a RegularizationTask (mink's
   Levenberg-Marquardt damping),
 - joint and velocity limits (placo's own, with ``dt``),
-- the table as a linearised half-space: the EE site and the fingertip frames keep
-  ``collision_min_distance`` above the table top, moving at most ``collision_rate`` of the gap a
-  step (mink's CollisionAvoidanceLimit does the same with exact geom distances).
+- the table as a hard, linearised half-space: the EE site keeps ``collision_min_distance`` plus
+  the fingers' reach past the site (:func:`finger_reach`, measured on the MuJoCo model) above the
+  (horizontal) table top, closing at most ``collision_rate`` of the gap a step. mink's
+  CollisionAvoidanceLimit does this with exact distances for every robot geom; this one is exact
+  for a gripper pointing down, conservative when it is tilted.
 
 placo and pinocchio work in the robot MJCF's world frame, which is the scene's world frame
 (``demo.sim.scene`` builds the scene on the robot's MJCF).
@@ -58,13 +60,15 @@ def load_placo_robot(robot: Any) -> Any:
     spec = robot.spec()
     for key in list(spec.keys):
         spec.delete(key)
+    # The copy lives in a temporary folder: make mesh and texture folders absolute.
+    folder = Path(robot.mjcf_path).resolve().parent
+    spec.meshdir = str(folder / (spec.meshdir or ""))
+    spec.texturedir = str(folder / (spec.texturedir or ""))
     try:
         xml = spec.to_xml()
     except Exception as exc:  # mujoco raises ValueError with the compiler's message
         raise DemoError(robot.config_path, f"cannot export the MJCF for placo: {exc}") from None
-    # Next to the original so relative mesh paths still resolve.
-    folder = Path(robot.mjcf_path).parent
-    fd, name = tempfile.mkstemp(prefix=".placo_", suffix=".xml", dir=folder if os.access(folder, os.W_OK) else None)
+    fd, name = tempfile.mkstemp(prefix="demo_placo_", suffix=".xml")
     try:
         with os.fdopen(fd, "w") as f:
             f.write(xml)
@@ -124,6 +128,7 @@ class PlacoIK:
         if table is not None:
             nq = r.model.nq
             constraint = s.add_joint_space_half_spaces_constraint(np.zeros((1, nq)), np.zeros(1))
+            constraint.configure("table", "hard")  # placo constraints are soft by default
             self._table = (float(table[0]) + float(table[1]) + params.collision_min_distance, constraint)
         self._T = np.eye(4)
         self.failures = 0

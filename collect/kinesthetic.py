@@ -18,7 +18,8 @@ the recording's first configuration (the objects come from the seed: a person st
 from wherever the arm was), and the command of frame ``k`` is the recorded configuration one
 control step later, so the position servos reproduce the recorded motion rather than lag it by
 a step. Joint values outside the robot's joint range are clipped for execution and flagged in
-``info.ik_ok`` (never silently): the recording does not fit this robot there.
+``info.ik_ok`` (never silently): the recording does not fit this robot there. ``info.ee_target``
+is the EE pose of the commanded configuration (MuJoCo forward kinematics).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from demo.collect.human import (
     record_episodes,
     reset_seed,
 )
+from demo.collect.retarget import ArmFK
 from demo.collect.rollout import StepCommand, rollout
 from demo.errors import DemoError
 from demo.sim import load_robot
@@ -65,7 +67,7 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...]) -> list[Joint
     if not path.is_file():
         raise DemoError(path, "joint file not found")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # tolerate a BOM (spreadsheet exports)
     except UnicodeDecodeError as exc:
         raise DemoError(path, f"not a UTF-8 text file ({exc.reason})") from None
     reader = csv.reader(text.splitlines())
@@ -152,7 +154,8 @@ def resample_joints(track: JointTrack, fps: float) -> tuple[np.ndarray, np.ndarr
     return q, track.gripper[i]
 
 
-def kinesthetic_episode(env: Any, track: JointTrack, seed: int) -> tuple[Any, np.ndarray, np.ndarray]:
+def kinesthetic_episode(env: Any, track: JointTrack, seed: int, fk: ArmFK | None = None
+                        ) -> tuple[Any, np.ndarray, np.ndarray]:
     """Play one joint track from ``env.reset(seed)``: (Episode, ik_ok [T,1], ik_error [T,2])."""
     q, grip = resample_joints(track, env.fps)
     m = env.model
@@ -160,6 +163,7 @@ def kinesthetic_episode(env: Any, track: JointTrack, seed: int) -> tuple[Any, np
     lo, hi = rng[:, 0], rng[:, 1]
     env.reset(seed)
     env.set_arm(q[0])
+    fk = fk or ArmFK(env)
     last = len(q) - 1
     ok: list[bool] = []
     err: list[tuple[float, float]] = []
@@ -173,7 +177,8 @@ def kinesthetic_episode(env: Any, track: JointTrack, seed: int) -> tuple[Any, np
         command = np.empty(len(target) + 1, dtype=np.float32)
         command[:-1] = clipped
         command[-1] = grip[min(t, last)]
-        return StepCommand(executed=command, label=command.copy(), ee_target=None)
+        pos, quat = fk(clipped)
+        return StepCommand(executed=command, label=command.copy(), ee_target=np.r_[pos, quat].astype(np.float32))
 
     episode = rollout(env, seed, act, reset=False, max_steps=len(q) + int(round(TAIL_S * env.fps)))
     return episode, np.array(ok, dtype=bool)[:, None], np.array(err, dtype=np.float32)
@@ -192,6 +197,7 @@ def collect_kinesthetic(
     append: bool = False,
     overwrite: bool = False,
     on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+    on_start: Callable[[int], None] | None = None,
 ) -> HumanCollectResult:
     """Play every episode of a joint CSV through the simulator into the store at ``out``."""
     arm_joints = load_robot(robot).arm_joints
@@ -201,12 +207,18 @@ def collect_kinesthetic(
         task_options=dict(task_options or {}), cameras=tuple(cameras), settings={"lookahead_steps": 1},
     )
 
+    state: dict[str, ArmFK] = {}
+
     def run(env: Any, index: int, count: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         track = tracks[index]
         s = reset_seed(track.episode, seed, index)
-        episode, ik_ok, ik_err = kinesthetic_episode(env, track, s)
+        if "fk" not in state:
+            state["fk"] = ArmFK(env)
+        fk = state["fk"]
+        episode, ik_ok, ik_err = kinesthetic_episode(env, track, s, fk)
         data = dict(episode.data)
         data["info.ik_ok"], data["info.ik_error"] = ik_ok, ik_err
         return data, episode_info(config, track.episode, s, episode.success, episode.first_success_step, ik_ok)
 
-    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, on_episode=on_episode)
+    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite,
+                           on_episode=on_episode, on_start=on_start)

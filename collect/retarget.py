@@ -11,8 +11,8 @@ Backends (``ik=``):
   toward home, ConfigurationLimit, VelocityLimit and a CollisionAvoidanceLimit between every
   moving robot geom and the table (plus the task's own obstacles, e.g. ``avoid``'s wall).
 - ``"placo"`` (:mod:`demo.collect.ik_placo`): the same tasks and limits in placo, for any
-  URDF/MJCF robot pinocchio loads; the table is a linearised half-space on the EE site and the
-  fingertips.
+  URDF/MJCF robot pinocchio loads; the table is a linearised half-space on the EE site (offset by
+  how far the fingers reach past it), the task's mocap obstacles are not modelled.
 
 A frame is *reached* (``ok``) when the commanded configuration puts the EE site within
 ``pos_tol`` (m) and ``rot_tol`` (rad) of the hand pose, checked with MuJoCo's own forward
@@ -94,10 +94,7 @@ class MinkBackend:
 
 def scene_spec_of(env: Any) -> mujoco.MjSpec:
     """The env's scene MjSpec (robot + table + task objects), which the IK models are built from."""
-    spec = getattr(env, "spec", None) or getattr(env, "_spec", None)
-    if spec is None:
-        raise DemoError(env.task_name, "the environment does not expose its scene spec for IK")
-    return spec
+    return env.spec
 
 
 def make_backend(env: Any, dt: float, params: IKParams, ik: str = "mink") -> IKBackend:
@@ -110,6 +107,30 @@ def make_backend(env: Any, dt: float, params: IKParams, ik: str = "mink") -> IKB
     raise DemoError("--ik", f"unknown IK backend {ik!r} (choose from {', '.join(IK_BACKENDS)})")
 
 
+class ArmFK:
+    """MuJoCo forward kinematics of the arm alone: EE site pose (base frame) at arm joints ``q``."""
+
+    def __init__(self, env: Any):
+        self.model = ik_spec(scene_spec_of(env), env.robot.arm_joints).compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in env.robot.arm_joints])
+        self._site = m.site(env.robot.ee_site).id
+        self._base_pos = np.asarray(env.base.pos, dtype=np.float64)
+        self._base_rot = np.asarray(env.base.rot, dtype=np.float64)
+        self._base_quat_inv = quat_conj(np.asarray(env.base.quat, dtype=np.float64))
+        self._quat = np.empty(4)
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Position (m) and quaternion (wxyz) of the EE site, base frame."""
+        d = self.data
+        d.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.model, d)
+        pos = self._base_rot.T @ (d.site_xpos[self._site] - self._base_pos)
+        mujoco.mju_mat2Quat(self._quat, d.site_xmat[self._site])
+        return pos, quat_mul(self._base_quat_inv, self._quat)
+
+
 class Retargeter:
     """Hand poses (base frame) -> joint targets for one env, one call per control step."""
 
@@ -120,17 +141,12 @@ class Retargeter:
         self.params = params
         self.dt = 1.0 / float(env.fps)
         self.backend = make_backend(env, self.dt / params.iters, params.ik, ik)
-        # MuJoCo forward kinematics of the arm alone: the one judge of "reached", for any backend.
-        self.fk_model = ik_spec(scene_spec_of(env), env.robot.arm_joints).compile()
-        self.fk_data = mujoco.MjData(self.fk_model)
-        m = self.fk_model
-        self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in env.robot.arm_joints])
-        self._site = m.site(env.robot.ee_site).id
+        # MuJoCo's forward kinematics is the one judge of "reached", whatever the backend.
+        self.fk = ArmFK(env)
+        self.fk_model, self.fk_data = self.fk.model, self.fk.data
         self._base_pos = np.asarray(env.base.pos, dtype=np.float64)
         self._base_rot = np.asarray(env.base.rot, dtype=np.float64)
         self._base_quat = np.asarray(env.base.quat, dtype=np.float64)
-        self._base_quat_inv = quat_conj(self._base_quat)
-        self._quat = np.empty(4)
         self.q = np.zeros(len(env.robot.arm_joints))
 
     def reset(self, q_arm: np.ndarray | None = None) -> None:
@@ -139,15 +155,6 @@ class Retargeter:
         self.q = np.array(env.data.qpos[env.arm_qadr] if q_arm is None else q_arm, dtype=np.float64)
         if env.model.nmocap:
             self.backend.set_mocap(env.data.mocap_pos, env.data.mocap_quat)
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """EE site pose (base frame: position m, quaternion wxyz) at arm configuration ``q``."""
-        d = self.fk_data
-        d.qpos[self._qadr] = q
-        mujoco.mj_kinematics(self.fk_model, d)
-        pos = self._base_rot.T @ (d.site_xpos[self._site] - self._base_pos)
-        mujoco.mju_mat2Quat(self._quat, d.site_xmat[self._site])
-        return pos, quat_mul(self._base_quat_inv, self._quat)
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Pose the commanded configuration puts the EE at (base frame)."""

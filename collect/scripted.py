@@ -173,31 +173,27 @@ def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items() if k != "episodes"}
 
 
-def open_output(out: Path, config: CollectConfig, append: bool, overwrite: bool) -> EpisodeStore:
+def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
     """Create the output store, or open it to append after checking it records the same thing."""
-    env = make_env_for(config)
-    try:
-        meta = store_meta(config, env)
-    finally:
-        env.close()
     if append and out.exists():
         store = EpisodeStore.open(out, "a")
+        have = store.meta
         mismatch = [
             name
             for name, a, b in [
-                ("task", (store.meta.task or {}).get("name"), config.task),
-                ("task options", (store.meta.task or {}).get("options"), dict(config.task_options)),
-                ("robot", store.meta.robot, meta.robot),
-                ("features", {k: v.to_json() for k, v in store.meta.features.items()},
+                ("task", (have.task or {}).get("name"), (meta.task or {}).get("name")),
+                ("task options", (have.task or {}).get("options"), (meta.task or {}).get("options")),
+                ("robot", have.robot, meta.robot),
+                ("features", {k: v.to_json() for k, v in have.features.items()},
                  {k: v.to_json() for k, v in meta.features.items()}),
-                ("action", store.meta.action.to_json(), meta.action.to_json()),
+                ("action", have.action.to_json(), meta.action.to_json()),
             ]
             if a != b
         ]
         if mismatch:
             store.close()
             raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
-        store.update_meta(provenance=[*store.meta.provenance, *meta.provenance])
+        store.update_meta(provenance=[*have.provenance, *meta.provenance])
         return store
     return EpisodeStore.create(out, meta, overwrite=overwrite)
 
@@ -235,7 +231,12 @@ def collect_scripted(
         raise DemoError("--noise", "must be >= 0")
     get_profile(config.operator)
     out = Path(out)
-    store = open_output(out, config, append, overwrite)
+    env = make_env_for(config)
+    try:
+        meta = store_meta(config, env)
+    finally:
+        env.close()
+    store = open_output(out, meta, append, overwrite)
     if append:
         config.first_episode = max(config.first_episode, _next_episode_index(store, config.seed))
     successes = frames = 0

@@ -35,7 +35,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from demo.collect.human import HumanConfig, InputEpisode, episode_info, human_store_meta, open_human_output
+from demo.collect.human import HumanConfig, InputEpisode, episode_info, human_store_meta
+from demo.collect.scripted import open_output
 from demo.collect.retarget import IK_BACKENDS, Retargeter
 from demo.collect.scripted import episode_seed, make_env_for
 from demo.errors import DemoError
@@ -92,7 +93,7 @@ class TeleopSession:
         self._thread: threading.Thread | None = None
         try:
             if config.out is not None:
-                self.store = open_human_output(Path(config.out), human_store_meta(self.human, self.env), True, False)
+                self.store = open_output(Path(config.out), human_store_meta(self.human, self.env), True, False)
             self.retargeter = Retargeter(self.env, config.ik) if config.mode == "vr" else None
             if config.mode == "kinesthetic":
                 self._soften_arm(config.soft_gain)

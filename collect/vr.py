@@ -113,7 +113,7 @@ def parse_poses(path: str | Path, task: str | None = None) -> list[PoseTrack]:
                                 quat=np.array(quat), grip=np.array(grip), engaged=np.array(engaged, dtype=bool)))
 
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except UnicodeDecodeError as exc:
         raise DemoError(path, f"not a UTF-8 text file ({exc.reason})") from None
     for number, text in enumerate(lines, start=1):
@@ -444,7 +444,7 @@ def collect_vr(
     calib: str | Path | None = None,
     scale: float = 1.0,
     ik: str = "mink",
-    smoothing: SmoothingParams = SmoothingParams(),
+    smoothing: SmoothingParams | float = SmoothingParams(),
     operator: str | None = None,
     robot: str | None = None,
     task_options: dict[str, Any] | None = None,
@@ -452,12 +452,20 @@ def collect_vr(
     append: bool = False,
     overwrite: bool = False,
     on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+    on_start: Callable[[int], None] | None = None,
 ) -> HumanCollectResult:
     """Retarget every episode of a pose file into the store at ``out`` (see the module docstring).
 
     ``calib``: calibration JSON (tracker -> base); None aligns the first pose to the EE at reset.
-    ``scale``: robot motion per hand motion. ``ik``: "mink" or "placo".
+    ``scale``: robot motion per hand motion. ``ik``: "mink" or "placo". ``smoothing``: One Euro
+    settings, or just the position cutoff at rest in Hz (0 = no smoothing). ``operator``: None
+    takes each episode's header ``operator``, else "human". ``on_start(count)`` /
+    ``on_episode(index, info, length)``: progress callbacks.
     """
+    if not isinstance(smoothing, SmoothingParams):
+        if not float(smoothing) >= 0:
+            raise DemoError("--smoothing", f"must be >= 0 Hz, got {smoothing}")
+        smoothing = SmoothingParams(min_cutoff=float(smoothing))
     if ik not in IK_BACKENDS:
         raise DemoError("--ik", f"unknown IK backend {ik!r} (choose from {', '.join(IK_BACKENDS)})")
     if not scale > 0:
@@ -485,4 +493,5 @@ def collect_vr(
         info["ik"] = ik
         return data, info
 
-    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, on_episode=on_episode)
+    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite,
+                           on_episode=on_episode, on_start=on_start)

@@ -1,0 +1,190 @@
+"""`demo teleop`: the live page serves on 127.0.0.1, a scripted websocket client (viser's own wire
+format) drives the gizmo and the buttons, the robot's EE follows to within 5 mm, and headless
+Chromium renders the page (screenshot not blank)."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+import viser
+import zstandard
+from websockets.sync.client import connect
+
+from demo.collect.teleop import TeleopConfig, TeleopSession
+from demo.store import EpisodeStore
+from viser import _messages as vm
+
+CHROMIUM = next((p for p in (shutil.which("chromium"), shutil.which("chromium-browser"), "/usr/bin/chromium")
+                 if p and os.path.exists(p)), None)
+
+
+class ViserWireClient:
+    """A minimal viser client: subprotocol viser-v<version>, msgpack out, zstd+msgpack windows in."""
+
+    def __init__(self, port: int):
+        self.ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None,
+                          open_timeout=20, close_timeout=1)
+        self.messages: list[dict[str, Any]] = []
+
+    def send(self, message: Any) -> None:
+        self.ws.send(msgspec.msgpack.encode(message.as_serializable_dict()))
+
+    def pump(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                raw = self.ws.recv(timeout=0.1)
+            except TimeoutError:
+                continue
+            n_inner = int.from_bytes(raw[0:8], "little")
+            n_comp = int.from_bytes(raw[8:16], "little")
+            inner = zstandard.ZstdDecompressor().decompress(raw[16:16 + n_comp], max_output_size=n_inner)
+            self.messages += msgspec.msgpack.decode(inner)["messages"]
+
+    def find(self, kind: str, **match: Any) -> dict[str, Any]:
+        for m in self.messages:
+            if m["type"] == kind and all(_get(m, k) == v for k, v in match.items()):
+                return m
+        raise AssertionError(f"no {kind} {match} among {len(self.messages)} messages")
+
+    def camera(self) -> None:
+        self.send(vm.ViewerCameraMessage(
+            wxyz=(1.0, 0.0, 0.0, 0.0), position=(1.5, -1.0, 1.0), fov=1.0, near=0.01, far=100.0,
+            image_height=480, image_width=640, look_at=(0.4, 0.0, 0.1), up_direction=(0.0, 0.0, 1.0)))
+
+    def click(self, label: str) -> None:
+        button = self.find("GuiButtonMessage", **{"props.label": label})
+        self.send(vm.GuiUpdateMessage(uuid=button["uuid"], updates={"value": True}))
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def _get(message: dict[str, Any], dotted: str) -> Any:
+    value: Any = message
+    for part in dotted.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    return value
+
+
+def _wait_until(predicate, seconds: float) -> bool:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.1)
+    return predicate()
+
+
+@pytest.mark.parametrize("mode", ["vr", "kinesthetic"])
+def test_websocket_client_moves_the_ee_to_the_gizmo_and_records(tmp_path: Path, mode: str) -> None:
+    out = tmp_path / "teleop.zarr"
+    session = TeleopSession(TeleopConfig(mode=mode, task="pick", out=str(out), port=0, operator="ws-client"))
+    client = None
+    try:
+        assert session.url.startswith("http://127.0.0.1:")
+        client = ViserWireClient(session.port)
+        client.camera()  # viser ignores a client's input until its first camera message
+        client.pump(1.5)
+        gizmo = client.find("TransformControlsMessage")
+        client.click("Start")
+        assert _wait_until(lambda: session.recording, 5.0)
+        pos, quat = session.ee_pose()
+        target = pos + np.array([0.04, -0.05, -0.06])
+        world = session.env.to_world(target)
+        client.send(vm.TransformControlsUpdateMessage(
+            name=gizmo["name"], wxyz=tuple(session.env.quat_to_world(quat)), position=tuple(world)))
+        client.click("Close gripper")
+        reached = _wait_until(lambda: np.linalg.norm(session.ee_pose()[0] - target) < 0.005, 20.0)
+        error = np.linalg.norm(session.ee_pose()[0] - target)
+        assert reached, f"EE is {error * 1000:.1f} mm from the gizmo"
+        client.click("Stop & save")
+        assert _wait_until(lambda: session.saved == 1, 5.0)
+    finally:
+        if client is not None:
+            client.close()
+        session.close()
+    store = EpisodeStore.open(out)
+    row = store.episode_info(0)
+    assert (row["source"], row["operator"], row["task"]) == (mode, "ws-client", "pick")
+    ep = store.read_episode(0)
+    assert np.linalg.norm(ep["obs.ee_pos"][-1] - target) < 0.01
+    assert ep["action"][-1, -1] == 1.0  # the gripper button reached the recorded command
+    assert ep["info.ik_ok"].shape == (store.episode_lengths[0], 1)
+    store.close()
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary (apt-get install -y chromium); CI installs it")
+def test_page_renders_in_headless_chromium(tmp_path: Path) -> None:
+    from PIL import Image
+
+    session = TeleopSession(TeleopConfig(mode="vr", task="pick", port=0))
+    profile = tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)
+    browser = subprocess.Popen(
+        [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
+         "--enable-unsafe-swiftshader", "--window-size=900,650", "--remote-debugging-port=0",
+         f"--user-data-dir={profile}", "about:blank"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    try:
+        port_file = Path(profile) / "DevToolsActivePort"
+        assert _wait_until(port_file.exists, 30.0), "chromium did not start"
+        devtools = int(port_file.read_text().split()[0])
+        pages = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{devtools}/json/list", timeout=10).read())
+        page = next(p for p in pages if p["type"] == "page")
+        with connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20) as cdp:
+            ids = iter(range(1, 10_000))
+
+            def call(method: str, **params: Any) -> dict[str, Any]:
+                i = next(ids)
+                cdp.send(json.dumps({"id": i, "method": method, "params": params}))
+                while True:
+                    reply = json.loads(cdp.recv(timeout=60))
+                    if reply.get("id") == i:
+                        return reply.get("result", {})
+
+            call("Page.navigate", url=session.url)
+            image = None
+            end = time.monotonic() + 45.0
+            while time.monotonic() < end:
+                time.sleep(2.0)
+                png = base64.b64decode(call("Page.captureScreenshot", format="png")["data"])
+                image = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(np.float64)
+                if _scene_drawn(image):
+                    break
+        assert image is not None
+        (tmp_path / "teleop.png").write_bytes(png)
+        assert _scene_drawn(image), "the 3D view stayed blank"
+    finally:
+        browser.terminate()
+        browser.wait(timeout=20)
+        session.close()
+
+
+def _scene_drawn(image: np.ndarray) -> bool:
+    """The 3D view (lower left, away from the panel and notices) shows the scene, not a blank canvas."""
+    h, w, _ = image.shape
+    view = image[h // 2:, : w // 2]
+    colours = len(np.unique(view.reshape(-1, 3).astype(np.uint8), axis=0))
+    return bool(view.std() > 10.0 and colours > 50)
+
+
+def test_bad_mode_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
+    from demo.cli.main import main
+
+    assert main(["teleop", "--mode", "haptic"]) == 1
+    err = capsys.readouterr().err
+    assert "error: --mode: unknown mode 'haptic'" in err.replace("\n", " ")
