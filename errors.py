@@ -17,3 +17,7 @@ class DemoError(Exception):
         self.problem = problem
         self.exit_code = exit_code
         super().__init__(f"{self.where}: {problem}" if self.where else problem)
+
+    def __reduce__(self) -> tuple:
+        # Errors raised in worker processes travel back by pickle.
+        return (DemoError, (self.where, self.problem, self.exit_code))

@@ -477,20 +477,24 @@ class EpisodeStore:
         new_meta.provenance = [*new_meta.provenance, record]
         out = EpisodeStore.create(path, new_meta, overwrite=overwrite)
         skip = {"episode_index", "start", "length", "duration_s", "crc32"}
-        batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
-        for index in chosen:
-            data = self.read_episode(int(index))
-            info = {k: v for k, v in self.episode_info(int(index)).items() if k not in skip}
-            if frame_ranges and int(index) in frame_ranges:
-                a, b = frame_ranges[int(index)]
-                data = {k: v[a:b] for k, v in data.items()}
-                info["trimmed_from"] = f"{int(index)}:{a}:{b}"
-            info["source_episode"] = int(index)
-            batch.append((data, info))
-            if sum(len(d["action"]) for d, _ in batch) > 200_000:
-                out.append_episodes(batch)
-                batch = []
-        out.append_episodes(batch)
+        starts, lengths = self.column("start"), self.episode_lengths
+        for block in _blocks(chosen, starts, lengths, max_frames=200_000):
+            # One read per key for the whole span of the block, then slices: zarr reads are costly per call.
+            lo = int(starts[block].min())
+            hi = int((starts[block] + lengths[block]).max())
+            span = {k: self._read(k, lo, hi) for k in self.meta.features}
+            batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
+            for index in block:
+                a, b = int(starts[index]) - lo, int(starts[index] + lengths[index]) - lo
+                if frame_ranges and int(index) in frame_ranges:
+                    first, last = frame_ranges[int(index)]
+                    a, b = a + first, a + last
+                info = {k: v for k, v in self.episode_info(int(index)).items() if k not in skip}
+                if frame_ranges and int(index) in frame_ranges:
+                    info["trimmed_from"] = f"{int(index)}:{frame_ranges[int(index)][0]}:{frame_ranges[int(index)][1]}"
+                info["source_episode"] = int(index)
+                batch.append(({k: v[a:b] for k, v in span.items()}, info))
+            out.append_episodes(batch)
         return out
 
     # ------------------------------------------------------------------ summary
@@ -521,6 +525,23 @@ class EpisodeStore:
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "provenance": self.meta.provenance,
         }
+
+
+def _blocks(chosen: np.ndarray, starts: np.ndarray, lengths: np.ndarray, max_frames: int) -> Iterator[np.ndarray]:
+    """Groups of the chosen episodes whose frames, and the span they lie in, stay near ``max_frames``."""
+    block: list[int] = []
+    frames, lo = 0, 0
+    for index in chosen:
+        end = int(starts[index] + lengths[index])
+        if block and (frames + lengths[index] > max_frames or end - lo > 2 * max_frames or starts[index] < lo):
+            yield np.asarray(block)
+            block, frames = [], 0
+        if not block:
+            lo = int(starts[index])
+        block.append(int(index))
+        frames += int(lengths[index])
+    if block:
+        yield np.asarray(block)
 
 
 def _run_concurrently(coroutines: list[Any]) -> None:

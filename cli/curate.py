@@ -1,0 +1,175 @@
+"""`demo curate IN --out OUT`: drop failed, idle, jerky, inconsistent, duplicate episodes; trim idle.
+
+Also registers `demo bench curate`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from demo.cli.bench import bench_app
+from demo.cli.main import app
+from demo.cli.output import console, table, write_json
+from demo.errors import DemoError
+
+OFF = ("off", "none", "no")
+
+
+def _threshold(value: str | None, flag: str) -> float | None:
+    """A number, or ``off`` to switch the filter off."""
+    if value is None or value.strip().lower() in OFF:
+        return None
+    try:
+        return float(value)
+    except ValueError:
+        raise DemoError(flag, f"expected a number or 'off', got {value!r}") from None
+
+
+@app.command()
+def curate(
+    source: Path = typer.Argument(..., help="Store to curate (never modified, except by --mask)."),
+    out: Path = typer.Option(None, "--out", "-o", help="Write the kept (trimmed) episodes to this new store."),
+    mask: str = typer.Option(None, "--mask", help="Write score.* columns and mask.NAME (= kept) into the source store."),
+    report: str = typer.Option(None, "--report", help="Write the JSON report here ('-' for stdout)."),
+    plot: Path = typer.Option(None, "--plot", help="Write a PNG of the signal distributions with the thresholds."),
+    drop_failed: bool = typer.Option(True, "--drop-failed/--keep-failed", help="Drop episodes whose success flag is false."),
+    trim_idle: bool = typer.Option(True, "--trim-idle/--no-trim-idle", help="Cut idle runs at the start/end of kept episodes."),
+    max_idle: str = typer.Option("0.2", help="Max fraction of (trimmed) frames in mid-episode pauses, or 'off'."),
+    max_jerk: str = typer.Option("400", help="Max RMS jerk in range/s^3 (action range-normalised), or 'off'."),
+    min_consistency: str = typer.Option("0.5", help="Min share of sampled frames agreeing with other episodes, or 'off'."),
+    max_novelty: str = typer.Option("off", help="Max mean distance to other episodes' states (normalised obs units), or 'off'."),
+    max_length_z: str = typer.Option("3.5", help="Max robust z of log length within the task (too long only), or 'off'."),
+    dedupe: bool = typer.Option(True, "--dedupe/--no-dedupe", help="Keep only the first of (near-)duplicate episodes."),
+    dedupe_tol: float = typer.Option(0.003, help="Duplicate tolerance: RMS fingerprint difference in typical-range units."),
+    min_time_left: str = typer.Option("off", help="Near-miss: drop successes with less time to the horizon (s)."),
+    min_margin: str = typer.Option("off", help="Near-miss: drop successes with a success margin below this (task units)."),
+    idle_speed: float = typer.Option(0.02, help="Idle when every dimension moves slower than this (range/s)."),
+    min_pause: float = typer.Option(0.5, help="Shortest idle run that counts as a pause or an idle start/end (s)."),
+    neighbours: int = typer.Option(8, "--neighbours", "-k", help="Nearest frames of other episodes per query frame."),
+    agree_factor: float = typer.Option(
+        3.0, help="A sampled frame agrees when its action deviates from the other episodes' consensus by <= this x their spread."
+    ),
+    seed: int = typer.Option(0, help="Seed of the query-frame sampling."),
+    show: str = typer.Option("auto", help="Episodes in the table: all, dropped, none, auto (all up to 40 episodes)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out store."),
+) -> None:
+    """Find and drop failed, idle, jerky, inconsistent and duplicate episodes; trim idle starts/ends."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from demo.curate import report as rep
+    from demo.curate.curate import CurateConfig, curate as run_curate
+    from demo.curate.signals.consistency import ConsistencyParams
+    from demo.curate.signals.duplicates import DuplicateParams
+    from demo.curate.signals.idle import IdleParams
+
+    if show not in ("auto", "all", "dropped", "none"):
+        raise DemoError("--show", f"expected all, dropped, none or auto, got {show!r}")
+    if neighbours < 1:
+        raise DemoError("--neighbours", "must be >= 1")
+    config = CurateConfig(
+        drop_failed=drop_failed,
+        trim_idle=trim_idle,
+        max_idle=_threshold(max_idle, "--max-idle"),
+        max_jerk=_threshold(max_jerk, "--max-jerk"),
+        min_consistency=_threshold(min_consistency, "--min-consistency"),
+        max_novelty=_threshold(max_novelty, "--max-novelty"),
+        max_length_z=_threshold(max_length_z, "--max-length-z"),
+        dedupe=dedupe,
+        min_time_left_s=_threshold(min_time_left, "--min-time-left"),
+        min_margin=_threshold(min_margin, "--min-margin"),
+        idle=IdleParams(speed=idle_speed, min_run_s=min_pause),
+        consistency=ConsistencyParams(k=neighbours, agree_factor=agree_factor, seed=seed),
+        duplicates=DuplicateParams(tol=dedupe_tol),
+    )
+    config.validate()
+    columns = (SpinnerColumn(), TextColumn("curate: {task.description}"), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task("open", total=None)
+        curation = run_curate(
+            source, out, mask=mask, config=config, overwrite=overwrite, progress=lambda s: bar.update(task, description=s)
+        )
+    result = rep.build(curation, source=source, out=out, mask=mask)
+    if report:
+        write_json(result, report)
+    if plot:
+        rep.plot(curation, plot)
+    if report == "-":
+        return
+    _print(result, show)
+    written = [f"{out} ({result['summary']['kept']} episodes)" if out else "", f"mask.{mask} in {source}" if mask else ""]
+    written += [str(report) if report else "", str(plot) if plot else ""]
+    console.print("wrote: " + (", ".join(w for w in written if w) or "nothing (analysis only: pass --out or --mask)"))
+
+
+def _print(result: dict, show: str) -> None:
+    s = result["summary"]
+    if show == "auto":
+        show = "all" if s["episodes"] <= 40 else "dropped"
+    from demo.curate.report import episode_table_rows
+
+    rows, left = episode_table_rows(result, show)
+    if rows:
+        console.print(table(f"episodes ({show})", ["#", "operator", "success", "frames", "decision", "trim", "reasons"], rows))
+        if left:
+            console.print(f"... and {left} more (see --report)")
+    by_reason = ", ".join(f"{k}: {v}" for k, v in s["dropped_by_reason"].items() if v) or "-"
+    console.print(
+        table(
+            "curation",
+            ["", ""],
+            [
+                ("kept", f"{s['kept']} / {s['episodes']} episodes, {s['frames_out']} / {s['frames_in']} frames"),
+                ("dropped", f"{s['dropped']} ({by_reason}; an episode may have several reasons)"),
+                ("trimmed", f"{s['trimmed']} kept episodes had idle start/end frames cut"),
+            ],
+        )
+    )
+    ops = result["operators"]
+    if len(ops) > 1 or (ops and ops[0]["operator"] != "(none)"):
+        console.print(
+            table(
+                "per operator (kept = in the curated subset)",
+                ["operator", "episodes", "failed", "kept", "kept %", "dropped %", "dropped for"],
+                [
+                    (r["operator"], r["episodes"], r["failed"], r["kept"], f"{r['kept_share']:.0%}", f"{r['dropped_share']:.0%}",
+                     ", ".join(f"{k} {v}" for k, v in r["dropped_for"].items()))
+                    for r in ops
+                ],
+            )
+        )
+    t = result["targets"]
+    if t:
+        parts = [f"{k.replace('_', ' ')} {v:.0%}" for k, v in t.items() if k.endswith("share")]
+        verdict = "[green]met[/]" if t["met"] else "[red]not met[/]"
+        console.print(f"targets (each >= {t['threshold']:.0%}): {', '.join(parts)}: {verdict}")
+
+
+@bench_app.command("curate")
+def bench_curate(
+    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    frames: int = typer.Option(1_000_000, help="Frames in the synthetic store."),
+    episode_s: float = typer.Option(10.0, help="Mean episode duration (s at 20 fps)."),
+    seed: int = typer.Option(0),
+) -> None:
+    """Curation frames/s with every signal on, vs reading + normalising the same arrays."""
+    from demo.bench.curate import run
+
+    r = run(frames=frames, episode_s=episode_s, seed=seed)
+    if json_out != "-":
+        console.print(
+            table(
+                "bench curate",
+                ["figure", "value"],
+                [
+                    ("frames / episodes", f"{r['frames']} / {r['episodes']}"),
+                    ("curation frames/s (all signals)", r["frames_per_s"]),
+                    ("curation seconds", r["seconds"]),
+                    ("reference: read + normalise frames/s", r["reference_frames_per_s"]),
+                    ("ratio to reference", r["ratio_to_reference"]),
+                    ("target", f"<= {r['target_seconds_per_1m']} s per 1M frames: {'met' if r['meets_target'] else 'NOT met'}"),
+                ],
+            )
+        )
+    write_json(r, json_out)
