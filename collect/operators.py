@@ -9,18 +9,21 @@ there the clean expert action is the label and only the executed action is pertu
 Per-episode draws (all from the episode's rng, so a seed reproduces the episode):
 
 ========  =========  ==============  =============  ===================  ==========================
-profile   jitter     smooth drift    pauses         strategy             failure (freeze / drop)
+profile   jitter     hand wander     pauses         strategy             failure (freeze / drop)
 ========  =========  ==============  =============  ===================  ==========================
 expert    0          0               none           default              never
-good      0.004 rad  0.01 rad        rare, short    small variations     2%
-okay      0.015 rad  0.03 rad        idle start     variations           10%
-poor      0.05 rad   0.06 rad        long, often    inconsistent         35%
+good      0.002 rad  4 mm            rare, short    varied per episode   2%
+okay      0.008 rad  7 mm            idle start     varied per episode   10%
+poor      0.015 rad  10 mm           long, often    varied per episode   35%
 ========  =========  ==============  =============  ===================  ==========================
 
-Jitter is white noise on the arm joint targets (jerky motion); drift is a slow random walk (the hand
-wandering off the ideal path, which the expert's feedback then corrects); a pause holds the last
-command for a while (idle frames); a failure either freezes the operator for the rest of the episode
-or opens the gripper early.
+Jitter is white noise on the arm joint targets (jerky motion). The hand wander is a slow, smooth
+offset (two sinusoids of 0.1-0.4 Hz per axis, random phases) added to every position the expert
+aims at, so the hand drifts off the ideal path while the expert's feedback keeps following it; the
+same offset on the joint targets would outrun the expert's correction and make every episode fail.
+Wander is smooth on purpose: it makes episodes differ (inconsistent), jitter makes them jerky. A pause holds the
+last command for a while (idle frames); a failure either freezes the operator for the rest of the
+episode or opens the gripper early.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ PROFILE_NAMES = ("expert", "good", "okay", "poor")
 class Profile:
     name: str
     jitter_rad: float  # std of white noise on arm joint targets per control step
-    drift_rad: float  # std of the slow random-walk offset on arm joint targets
+    wander_m: float  # amplitude (std) of the slow wander of the expert's aim point (m, base frame)
     idle_start_s: tuple[float, float]  # range of the idle time before the operator starts
     pause_rate_hz: float  # expected mid-episode pauses per second
     pause_s: tuple[float, float]  # range of a pause's duration
@@ -47,9 +50,9 @@ class Profile:
 
 PROFILES: dict[str, Profile] = {
     "expert": Profile("expert", 0.0, 0.0, (0.0, 0.0), 0.0, (0.0, 0.0), (1.0, 1.0), False, 0.0),
-    "good": Profile("good", 0.004, 0.01, (0.0, 0.3), 0.02, (0.2, 0.5), (0.85, 1.0), True, 0.02),
-    "okay": Profile("okay", 0.015, 0.03, (0.5, 1.5), 0.08, (0.3, 1.0), (0.7, 1.0), True, 0.10),
-    "poor": Profile("poor", 0.05, 0.06, (1.0, 3.0), 0.2, (0.5, 2.0), (0.5, 1.0), True, 0.35),
+    "good": Profile("good", 0.002, 0.004, (0.0, 0.3), 0.02, (0.2, 0.5), (0.85, 1.0), True, 0.02),
+    "okay": Profile("okay", 0.008, 0.007, (0.5, 1.5), 0.08, (0.3, 1.0), (0.7, 1.0), True, 0.10),
+    "poor": Profile("poor", 0.015, 0.010, (1.0, 3.0), 0.2, (0.5, 2.0), (0.5, 1.0), True, 0.35),
 }
 
 
@@ -78,13 +81,23 @@ class Operator:
         self.fails = bool(rng.random() < profile.failure_prob)
         self.failure_kind = str(rng.choice(["freeze", "drop"])) if self.fails else ""
         self.failure_step = int(rng.integers(self.idle_steps + horizon // 4, max(self.idle_steps + horizon // 4 + 1, horizon * 3 // 4)))
-        self._drift = np.zeros(n_arm)
+        self._wander_hz = rng.uniform(0.1, 0.4, size=(2, 3))
+        self._wander_phase = rng.uniform(0.0, 2 * np.pi, size=(2, 3))
+        self._step = 0
         self._pause_left = 0
         self._held: np.ndarray | None = None
 
     @property
     def expert_style(self) -> dict:
-        return {"speed": self.speed, "vary_strategy": self.profile.vary_strategy}
+        return {"speed": self.speed, "vary": self.profile.vary_strategy}
+
+    def steer(self, expert: object) -> None:
+        """Move the expert's aim point one step along the hand's random walk (call before ``act``)."""
+        if self.profile.wander_m > 0:
+            t = self._step / self.fps
+            waves = np.sin(2 * np.pi * self._wander_hz * t + self._wander_phase).sum(axis=0)
+            expert.aim_offset = self.profile.wander_m * waves  # each sinusoid has std 1/sqrt(2)
+            self._step += 1
 
     def command(self, step: int, clean: np.ndarray, hold: np.ndarray) -> np.ndarray:
         """The command sent at control ``step``: ``clean`` from the expert, ``hold`` = keep still."""
@@ -108,9 +121,6 @@ class Operator:
             return self._held.copy()
         self._held = None
         out = clean.copy()
-        if p.drift_rad > 0:
-            self._drift = 0.95 * self._drift + self.rng.normal(0.0, p.drift_rad * np.sqrt(1 - 0.95**2), self.n_arm)
-            out[: self.n_arm] += self._drift
         if p.jitter_rad > 0:
             out[: self.n_arm] += self.rng.normal(0.0, p.jitter_rad, self.n_arm)
         return out

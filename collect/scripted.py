@@ -53,6 +53,15 @@ def make_env_for(config: CollectConfig) -> Any:
     return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
 
 
+def balanced_modes(config: CollectConfig, index: int) -> dict[str, Any]:
+    """Expert style that balances a bimodal task's modes: each pair of episodes takes both sides,
+    in a random order, so a small dataset holds both modes in near-equal shares."""
+    if config.task != "avoid":
+        return {}
+    pair_flip = np.random.default_rng([config.seed, index // 2, 3]).random() < 0.5
+    return {"p_left": float(pair_flip ^ (index % 2 == 1))}
+
+
 def hold_action(env: Any) -> np.ndarray:
     """The command that keeps the robot where it is: measured joint angles and gripper closedness."""
     obs = env.observe()
@@ -67,11 +76,13 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     n_arm = len(env.robot.arm_joints)
     operator = Operator(profile, rng, env.fps, env.horizon, n_arm) if profile.name != "expert" else None
     env.reset(seed)
-    style = operator.expert_style if operator else {}
+    style = {**(operator.expert_style if operator else {}), **balanced_modes(config, index)}
     expert = env.expert(rng=np.random.default_rng([seed, 2]), **style)
     last_sent: list[np.ndarray] = [hold_action(env)]
 
     def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        if operator:
+            operator.steer(expert)
         clean = np.asarray(expert.act(env), dtype=np.float32)
         sent = operator.command(t, clean, last_sent[0]) if operator else clean
         executed = sent.copy()

@@ -1,0 +1,136 @@
+"""`avoid`: reach a goal behind an obstacle, passing it on the left or on the right.
+
+Reset: a box obstacle (mocap; 6 x 14 x 24 cm) stands at x 0.44..0.50, |y| <= 0.05 m (base
+frame); the goal (a marker) is behind it (0.16..0.20 m past its centre, z 0.08..0.20 m) and the
+EE starts in front of it at the same heights, gripper pointing down. Going over the obstacle would
+need the TCP above ~0.26 m. Success: EE position within ``tol`` of the goal. Observations:
+``obs.obstacle_pos`` [3] (obstacle centre), ``obs.goal_pos`` [3] (m, base frame).
+
+Expert: a BIMODAL demonstrator. It draws a side (left = +y, right = -y, 50/50) from its rng at
+construction and heads for it; whenever the EE is clearly beside the obstacle the state decides
+(it carries on along the side it is on). ``mode`` reports the side the EE was last clearly on, or
+the drawn side before that. Waypoints: beside the front corner, beside the rear corner, goal; the IK
+keeps the arm ``collision_min_distance`` away from the obstacle (mink collision avoidance).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+from demo.sim.geometry import down_quat
+from demo.sim.scene import SCENE_CONAFFINITY, SCENE_CONTYPE, BaseFrame, add_marker_geom, add_mocap_body
+from demo.sim.task import Expert, ExpertParams, Task
+from demo.store import FeatureSpec
+
+if TYPE_CHECKING:
+    from demo.sim.env import Env
+
+OBSTACLE_HALF = (0.03, 0.07, 0.12)  # m
+HAND_REACH = 0.10  # m the built-in hand extends along its long axis from the TCP (clearances)
+
+
+@dataclasses.dataclass
+class AvoidParams(ExpertParams):
+    clearance: float = 0.095  # m from the obstacle's side face to the TCP while passing
+    corner: float = 0.13  # m from the obstacle's front/rear face to the TCP at the corners
+    p_left: float = 0.5  # probability of choosing the left (+y) side
+
+
+class AvoidExpert(Expert):
+    Params = AvoidParams
+    VARIATIONS = {"clearance": (0.085, 0.12), "corner": (0.12, 0.16)}
+    p: AvoidParams
+
+    def _setup(self, env: "Env") -> None:
+        self._choice = 1.0 if self.rng.random() < self.p.p_left else -1.0
+        self._taken: float | None = None  # the side the EE was last seen clearly on (for `mode`)
+
+    @property
+    def mode(self) -> str:
+        """The side demonstrated: where the EE was last clearly beside the obstacle, else the choice."""
+        side = self._choice if self._taken is None else self._taken
+        return "left" if side > 0 else "right"
+
+    def act(self, env: "Env") -> np.ndarray:
+        task: Avoid = env.task  # type: ignore[assignment]
+        p = self.p
+        obs_pos = task.obstacle(env)
+        goal = task.goal(env)
+        ee, _ = env.ee_pose()
+        hx, hy, _ = OBSTACLE_HALF
+        dy = ee[1] - obs_pos[1]
+        if abs(dy) > hy + 0.02:
+            s = self._taken = math.copysign(1.0, dy)  # committed: the state decides
+        else:
+            s = self._choice
+        side_y = obs_pos[1] + s * (hy + p.clearance)
+        q = down_quat(env.home_yaw)
+        if ee[0] > obs_pos[0] + hx + HAND_REACH:
+            target = goal  # the hand is past the obstacle
+        elif s * dy > hy + p.clearance - 0.025:
+            target = np.array([obs_pos[0] + hx + p.corner, side_y, goal[2]])  # along the side
+        else:
+            target = np.array([min(ee[0], obs_pos[0] - hx - p.corner), side_y, goal[2]])  # sidestep first
+        return self.move(env, target, q, 0.0)
+
+
+class Avoid(Task):
+    name = "avoid"
+    defaults = {"tol": 0.02}
+    expert_class = AvoidExpert
+    avoid_geoms = ("obstacle",)
+
+    @property
+    def horizon(self) -> int:
+        return 100
+
+    def build(self, spec: mujoco.MjSpec, base: BaseFrame) -> None:
+        obstacle = add_mocap_body(spec, "obstacle")
+        obstacle.add_geom(
+            name="obstacle",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=list(OBSTACLE_HALF),
+            rgba=[0.6, 0.6, 0.65, 1.0],
+            contype=SCENE_CONTYPE,
+            conaffinity=SCENE_CONAFFINITY,
+        )
+        goal = add_mocap_body(spec, "goal")
+        add_marker_geom(goal, mujoco.mjtGeom.mjGEOM_SPHERE, [0.015], [0.1, 0.8, 0.2, 0.5])
+
+    def bind(self, env: "Env") -> None:
+        m = env.model
+        self.obstacle_mocap = int(m.body_mocapid[m.body("obstacle").id])
+        self.goal_mocap = int(m.body_mocapid[m.body("goal").id])
+
+    def reset(self, env: "Env", rng: np.random.Generator) -> None:
+        o = np.array([rng.uniform(0.44, 0.50), rng.uniform(-0.05, 0.05), OBSTACLE_HALF[2]])
+        goal = np.array([o[0] + rng.uniform(0.16, 0.20), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(0.08, 0.20)])
+        start = np.array([o[0] - rng.uniform(0.16, 0.20), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(0.08, 0.20)])
+        env.set_mocap_pose(self.obstacle_mocap, o)
+        env.set_mocap_pose(self.goal_mocap, goal)
+        env.place_ee(start, down_quat(env.home_yaw))
+
+    def obstacle(self, env: "Env") -> np.ndarray:
+        return env.mocap_pose(self.obstacle_mocap)[0]
+
+    def goal(self, env: "Env") -> np.ndarray:
+        return env.mocap_pose(self.goal_mocap)[0]
+
+    def features(self, env: "Env") -> dict[str, FeatureSpec]:
+        return {
+            "obs.obstacle_pos": FeatureSpec((3,), "float32", "obstacle centre, base frame", "m", ("x", "y", "z")),
+            "obs.goal_pos": FeatureSpec((3,), "float32", "goal EE position, base frame", "m", ("x", "y", "z")),
+        }
+
+    def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
+        out["obs.obstacle_pos"] = self.obstacle(env).astype(np.float32)
+        out["obs.goal_pos"] = self.goal(env).astype(np.float32)
+
+    def success(self, env: "Env") -> bool:
+        ee, _ = env.ee_pose()
+        return bool(np.linalg.norm(ee - self.goal(env)) < float(self.options["tol"]))

@@ -1,0 +1,380 @@
+"""The simulation environment (gymnasium-style) that collect, train and eval share.
+
+Conventions:
+
+- Control at ``fps`` = 20 Hz: one :meth:`Env.step` applies the action and runs ``n_substeps`` = 25
+  physics steps of 2 ms.
+- Action (``env.action_spec``, name ``joint_pos``): the arm's joint position targets (rad, in the
+  robot config's ``arm_joints`` order) followed by the gripper command, a closedness in [0, 1]
+  (0 = fully open, 1 = fully closed) mapped linearly onto the gripper actuator's ``gripper_range``.
+  Out-of-range targets are clipped to the actuators' ctrl ranges.
+- Observations (float32): ``obs.joint_pos`` (rad), ``obs.joint_vel`` (rad/s), ``obs.gripper``
+  (measured closedness, 0 open .. 1 closed), ``obs.ee_pos`` (m) and ``obs.ee_quat`` (wxyz, w >= 0)
+  of the EE site in the robot base frame, then the task's (object poses ``obs.object_pos`` [K,3] /
+  ``obs.object_quat`` [K,4], ``obs.goal_pos``, ...), then camera images ``obs.image_<camera>``
+  (uint8 [H,W,3]). :meth:`Env.frame` adds ``sim.state`` (float64, MuJoCo integration state).
+- ``step`` returns ``terminated = True`` on every step at which the task's success predicate holds
+  (the env itself never stops; the caller decides when to end, e.g. a few steps after success),
+  ``truncated = True`` once the episode time reaches ``horizon`` control steps, ``reward`` = 1.0 on
+  success steps else 0.0, and ``info = {"success": bool}``. The step count is derived from the
+  simulation time, so it survives ``set_state``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from demo.errors import DemoError
+from demo.sim.geometry import canonical, mat2quat, quat_conj, quat_mul, yaw_of
+from demo.sim.ik import ArmIK
+from demo.sim.render import parse_cameras
+from demo.sim.robot import RobotConfig, arm_actuator_for, load_robot, position_gain
+from demo.sim.scene import scene_spec
+from demo.sim.task import Expert, Task
+from demo.store import ActionSpec, FeatureSpec
+
+CONTROL_HZ = 20.0
+N_SUBSTEPS = 25
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+
+
+class Env:
+    """One task scene with one robot. Create with :func:`demo.sim.make_env`."""
+
+    def __init__(self, task: Task, robot: RobotConfig, cameras: Sequence[Any] = ()):
+        self.task = task
+        self.task_name = task.name
+        self.task_options = dict(task.options)
+        self.robot = robot
+        self.cameras = parse_cameras(cameras)
+        spec, self.base = scene_spec(robot, max_camera_size=self.cameras.max_size())
+        task.build(spec, self.base)
+        self._spec = spec
+        try:
+            self.model = spec.compile()
+        except Exception as exc:
+            raise DemoError(robot.config_path, f"scene for task {task.name} does not compile: {exc}") from None
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = N_SUBSTEPS
+        self.fps = CONTROL_HZ
+        self.seed: int | None = None
+        self._bind_robot()
+        self._ik: ArmIK | None = None
+        self._obs_cache: tuple | None = None
+        self.cameras.open(self.model)
+        task.bind(self)
+        self.horizon = int(task.horizon)
+        self.action_spec = self._make_action_spec()
+        self.reset(0)
+        self.features = self._make_features()
+        self.seed = None
+
+    # ------------------------------------------------------------------ robot wiring
+    def _bind_robot(self) -> None:
+        m, r = self.model, self.robot
+        jids = [m.joint(j).id for j in r.arm_joints]
+        self.arm_qadr = np.array([m.jnt_qposadr[j] for j in jids])
+        self.arm_dadr = np.array([m.jnt_dofadr[j] for j in jids])
+        acts = [arm_actuator_for(m, j, name, r.config_path) for j, name in zip(jids, r.arm_joints)]
+        self.arm_act = np.array(acts)
+        gains = [position_gain(m, a, r.arm_joints[i], r.config_path) for i, a in enumerate(acts)]
+        gear = m.actuator_gear[self.arm_act, 0]
+        # ctrl that makes the servo settle at joint target q: gear * q = scale * ctrl + offset
+        self._arm_ctrl_scale = gear / np.array([g[0] for g in gains])
+        self._arm_ctrl_offset = -np.array([g[1] for g in gains]) / np.array([g[0] for g in gains])
+        self._ctrl_lo = m.actuator_ctrlrange[:, 0].copy()
+        self._ctrl_hi = m.actuator_ctrlrange[:, 1].copy()
+        no_range = ~m.actuator_ctrllimited.astype(bool)
+        self._ctrl_lo[no_range], self._ctrl_hi[no_range] = -np.inf, np.inf
+        self.grip_act = m.actuator(r.gripper_actuator).id
+        self._grip_open, self._grip_closed = r.gripper_range
+        s, o = position_gain(m, self.grip_act, r.gripper_actuator, r.config_path)
+        self._grip_len_open = s * self._grip_open + o
+        self._grip_len_closed = s * self._grip_closed + o
+        self.ee_site = m.site(r.ee_site).id
+        self.ee_body = int(m.site_bodyid[self.ee_site])
+        # Bodies that move with the fingers: strictly below the EE site's body in the tree.
+        self.finger_bodies = np.array(
+            [b for b in range(m.nbody) if b != self.ee_body and _is_descendant(m, b, self.ee_body)], dtype=int
+        )
+        self._finger_mask = np.zeros(m.nbody, dtype=bool)
+        self._finger_mask[self.finger_bodies] = True
+        self._base_rot_t = self.base.rot.T.copy()
+        self._base_is_world = not self.base.pos.any() and bool(np.array_equal(self.base.quat, [1.0, 0.0, 0.0, 0.0]))
+        self._base_quat_inv = quat_conj(self.base.quat)
+        self._home = {m.joint(j).id: v for j, v in r.home_qpos.items()}
+        # EE pose at home: tasks take the "natural" gripper heading from it.
+        scratch = mujoco.MjData(m)
+        for jid, v in self._home.items():
+            scratch.qpos[m.jnt_qposadr[jid]] = v
+        mujoco.mj_kinematics(m, scratch)
+        self.home_ee_pos = self._base_rot_t @ (scratch.site_xpos[self.ee_site] - self.base.pos)
+        self.home_ee_quat = quat_mul(self._base_quat_inv, mat2quat(scratch.site_xmat[self.ee_site]))
+        self.home_yaw = yaw_of(self.home_ee_quat)
+
+    def _make_action_spec(self) -> ActionSpec:
+        names = tuple(f"{j}.target" for j in self.robot.arm_joints) + ("gripper",)
+        units = ("rad",) * self.robot.n_arm + ("1",)
+        return ActionSpec(
+            "joint_pos",
+            names=names,
+            units=units,
+            frame="joint",
+            description="arm joint position targets + gripper closedness (0 open, 1 closed)",
+            params={"gripper": "closedness in [0, 1]: 0 = open, 1 = closed", "arm_joints": list(self.robot.arm_joints)},
+        )
+
+    def _make_features(self) -> dict[str, FeatureSpec]:
+        arm = tuple(self.robot.arm_joints)
+        f = {
+            "obs.joint_pos": FeatureSpec((len(arm),), "float32", "arm joint positions", "rad", arm),
+            "obs.joint_vel": FeatureSpec((len(arm),), "float32", "arm joint velocities", "rad/s", arm),
+            "obs.gripper": FeatureSpec((1,), "float32", "gripper closedness, measured (0 open, 1 closed)", "1"),
+            "obs.ee_pos": FeatureSpec((3,), "float32", "EE site position, base frame", "m", ("x", "y", "z")),
+            "obs.ee_quat": FeatureSpec((4,), "float32", "EE site orientation, base frame, w >= 0", "1", ("w", "x", "y", "z")),
+        }
+        f.update(self.task.features(self))
+        for name, h, w in self.cameras.specs:
+            f[f"obs.image_{name}"] = FeatureSpec((h, w, 3), "uint8", f"camera '{name}' RGB", "")
+        n = mujoco.mj_stateSize(self.model, _STATE)
+        f["sim.state"] = FeatureSpec((n,), "float64", "MuJoCo integration state (mjSTATE_INTEGRATION)", "")
+        return f
+
+    # ------------------------------------------------------------------ episode API
+    def reset(self, seed: int) -> dict[str, np.ndarray]:
+        """Home configuration + noise, task objects and goals randomised from ``seed``."""
+        m, d = self.model, self.data
+        self.seed = int(seed)
+        rng = np.random.default_rng(self.seed)
+        mujoco.mj_resetData(m, d)
+        for jid, v in self._home.items():
+            d.qpos[m.jnt_qposadr[jid]] = v
+        q = d.qpos[self.arm_qadr] + rng.uniform(-1.0, 1.0, self.robot.n_arm) * self.task.arm_noise
+        self.set_arm(q)
+        d.ctrl[self.grip_act] = self._gripper_ctrl(self.robot.home_gripper)
+        mujoco.mj_forward(m, d)
+        self.task.reset(self, rng)
+        mujoco.mj_forward(m, d)
+        return self.observe()
+
+    def set_arm(self, q: np.ndarray) -> None:
+        """Place the arm at joint positions ``q`` at rest, holding them (for resets)."""
+        m, d = self.model, self.data
+        lo = m.jnt_range[[m.joint(j).id for j in self.robot.arm_joints]]
+        q = np.clip(q, lo[:, 0], lo[:, 1])
+        d.qpos[self.arm_qadr] = q
+        d.qvel[self.arm_dadr] = 0.0
+        d.ctrl[self.arm_act] = self._arm_ctrl(q)
+        mujoco.mj_forward(m, d)
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (self.action_spec.dim,):
+            raise DemoError("action", f"expected shape ({self.action_spec.dim},), got {a.shape}")
+        d = self.data
+        d.ctrl[self.arm_act] = self._arm_ctrl(a[:-1])
+        d.ctrl[self.grip_act] = self._gripper_ctrl(a[-1])
+        np.clip(d.ctrl, self._ctrl_lo, self._ctrl_hi, out=d.ctrl)
+        mujoco.mj_step(self.model, d, nstep=self.n_substeps)
+        obs = self.observe()
+        ok = self.task.success(self)
+        truncated = self.steps >= self.horizon
+        return obs, float(ok), ok, truncated, {"success": ok}
+
+    @property
+    def steps(self) -> int:
+        """Control steps since reset (from the simulation time)."""
+        return int(round(self.data.time * self.fps))
+
+    def _arm_ctrl(self, q: np.ndarray) -> np.ndarray:
+        return q * self._arm_ctrl_scale + self._arm_ctrl_offset
+
+    def _gripper_ctrl(self, closedness: float) -> float:
+        c = min(1.0, max(0.0, float(closedness)))
+        return self._grip_open + c * (self._grip_closed - self._grip_open)
+
+    def success(self) -> bool:
+        return bool(self.task.success(self))
+
+    # ------------------------------------------------------------------ observations
+    def observe(self) -> dict[str, np.ndarray]:
+        """Observations of the current state (``obs.*``).
+
+        The last result is reused while time, qpos, qvel and the mocap poses are unchanged, so
+        ``step()`` followed by ``frame()`` renders the cameras once.
+        """
+        d = self.data
+        c = self._obs_cache
+        if (
+            c is not None
+            and c[0] == d.time
+            and np.array_equal(c[1], d.qpos)
+            and np.array_equal(c[2], d.qvel)
+            and np.array_equal(c[3], d.mocap_pos)
+            and np.array_equal(c[4], d.mocap_quat)
+        ):
+            return dict(c[5])
+        out = self._observe()
+        self._obs_cache = (d.time, d.qpos.copy(), d.qvel.copy(), d.mocap_pos.copy(), d.mocap_quat.copy(), out)
+        return dict(out)
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        d = self.data
+        pos, quat = self.ee_pose()
+        out = {
+            "obs.joint_pos": d.qpos[self.arm_qadr].astype(np.float32),
+            "obs.joint_vel": d.qvel[self.arm_dadr].astype(np.float32),
+            "obs.gripper": np.array([self.gripper_closedness()], dtype=np.float32),
+            "obs.ee_pos": pos.astype(np.float32),
+            "obs.ee_quat": canonical(quat).astype(np.float32),
+        }
+        self.task.observe(self, out)
+        if self.cameras.specs:
+            self.cameras.render(self.data, out)
+        return out
+
+    def frame(self) -> dict[str, np.ndarray]:
+        """Observations plus ``sim.state`` (what a collector records per frame)."""
+        out = self.observe()
+        out["sim.state"] = self.get_state()
+        return out
+
+    def gripper_closedness(self) -> float:
+        length = float(self.data.actuator_length[self.grip_act])
+        return (length - self._grip_len_open) / (self._grip_len_closed - self._grip_len_open)
+
+    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """EE site pose in the base frame: position (m) and quaternion (wxyz)."""
+        d = self.data
+        if self._base_is_world:
+            return d.site_xpos[self.ee_site].copy(), mat2quat(d.site_xmat[self.ee_site])
+        pos = self._base_rot_t @ (d.site_xpos[self.ee_site] - self.base.pos)
+        quat = quat_mul(self._base_quat_inv, mat2quat(d.site_xmat[self.ee_site]))
+        return pos, quat
+
+    def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """A body's pose in the base frame."""
+        d = self.data
+        if self._base_is_world:
+            return d.xpos[body_id].copy(), d.xquat[body_id].copy()
+        pos = self._base_rot_t @ (d.xpos[body_id] - self.base.pos)
+        return pos, quat_mul(self._base_quat_inv, d.xquat[body_id])
+
+    def mocap_pose(self, mocap_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """A mocap body's pose (goal marker, obstacle) in the base frame."""
+        d = self.data
+        if self._base_is_world:
+            return d.mocap_pos[mocap_id].copy(), d.mocap_quat[mocap_id].copy()
+        pos = self._base_rot_t @ (d.mocap_pos[mocap_id] - self.base.pos)
+        return pos, quat_mul(self._base_quat_inv, d.mocap_quat[mocap_id])
+
+    def set_mocap_pose(self, mocap_id: int, pos: np.ndarray, quat: np.ndarray | None = None) -> None:
+        """Place a mocap body at a base-frame pose (orientation default: aligned with the base)."""
+        self.data.mocap_pos[mocap_id] = self.to_world(np.asarray(pos, dtype=np.float64))
+        self.data.mocap_quat[mocap_id] = self.base.quat if quat is None else self.quat_to_world(quat)
+
+    def to_world(self, pos: np.ndarray) -> np.ndarray:
+        """Base-frame position -> world."""
+        if self._base_is_world:
+            return np.array(pos, dtype=np.float64)
+        return self.base.pos + self._base_rot_t.T @ pos
+
+    def quat_to_world(self, quat: np.ndarray) -> np.ndarray:
+        """Base-frame orientation (wxyz) -> world."""
+        if self._base_is_world:
+            return np.array(quat, dtype=np.float64)
+        return quat_mul(self.base.quat, quat)
+
+    def finger_contacts(self, geom_mask: np.ndarray) -> int:
+        """How many distinct finger bodies touch a geom selected by the boolean ``geom_mask``."""
+        geom = self.data.contact.geom
+        if geom.shape[0] == 0:
+            return 0
+        body = self.model.geom_bodyid[geom]
+        fm = self._finger_mask
+        hit1 = fm[body[:, 0]] & geom_mask[geom[:, 1]]
+        hit2 = fm[body[:, 1]] & geom_mask[geom[:, 0]]
+        if not (hit1.any() or hit2.any()):
+            return 0
+        return len(set(body[hit1, 0].tolist()) | set(body[hit2, 1].tolist()))
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> np.ndarray:
+        s = np.empty(mujoco.mj_stateSize(self.model, _STATE))
+        mujoco.mj_getState(self.model, self.data, s, _STATE)
+        return s
+
+    def set_state(self, state: np.ndarray) -> None:
+        mujoco.mj_setState(self.model, self.data, np.asarray(state, dtype=np.float64), _STATE)
+        mujoco.mj_forward(self.model, self.data)
+
+    # ------------------------------------------------------------------ experts
+    @property
+    def spec(self) -> mujoco.MjSpec:
+        """The scene's MjSpec (robot + table + task bodies) the model was compiled from; for IK models."""
+        return self._spec
+
+    @property
+    def ik(self) -> ArmIK:
+        """The experts' IK solver for this scene (built on first use)."""
+        if self._ik is None:
+            self._ik = ArmIK(self._spec, self.robot, 1.0 / self.fps, avoid_geoms=self.task.avoid_geoms)
+        return self._ik
+
+    def ik_step(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+        """Arm joint targets one control step toward an EE pose given in the base frame."""
+        ik = self.ik
+        d = self.data
+        ik.set_state(d.qpos[self.arm_qadr], d.mocap_pos, d.mocap_quat)
+        return ik.step(self.to_world(pos), self.quat_to_world(quat))
+
+    def place_ee(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Move the arm (kinematically, at rest) so the EE is at a base-frame pose; for resets."""
+        d = self.data
+        q = self.ik.solve_pose(d.qpos[self.arm_qadr], self.to_world(pos), self.quat_to_world(quat), d.mocap_pos, d.mocap_quat)
+        self.set_arm(q)
+
+    def expert(self, rng: np.random.Generator | None = None, **style: Any) -> Expert:
+        """The task's scripted expert for the current episode (see :class:`demo.sim.task.Expert`)."""
+        return self.task.expert_class(self, rng, **style)
+
+    def close(self) -> None:
+        self.cameras.close()
+
+    def __enter__(self) -> "Env":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _is_descendant(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > 0:
+        body = int(m.body_parentid[body])
+        if body == ancestor:
+            return True
+    return False
+
+
+def make_env(
+    task: str,
+    robot: str | Path | RobotConfig | None = None,
+    cameras: Sequence[Any] = (),
+    **task_options: Any,
+) -> Env:
+    """Build a task environment. ``robot``: None (built-in arm), a robot config path or a RobotConfig.
+
+    ``cameras``: ``(name, width, height)`` tuples (or bare names, 128x128) from ``front``, ``side``,
+    ``top``, ``wrist``; images are ``obs.image_<name>`` uint8 [height, width, 3]. Headless rendering
+    uses EGL (``demo.sim`` sets ``MUJOCO_GL=egl`` when unset).
+    """
+    from demo.sim.tasks import TASKS
+
+    if task not in TASKS:
+        raise DemoError(task, f"unknown task (known: {', '.join(TASKS)})")
+    return Env(TASKS[task](**task_options), load_robot(robot), cameras)

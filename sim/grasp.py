@@ -1,0 +1,153 @@
+"""Grasping a box from above, as a state-feedback rule shared by the pick and stack experts.
+
+Every decision reads the current state: the object's pose in the EE frame (is it between the
+fingers?), finger contacts (is it held?), the measured gripper closedness (is the gripper closed
+on nothing?) and the EE height (is it below the approach height?). Frames: base frame, EE site
+z = approach axis, y = finger axis.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from demo.sim.geometry import down_quat, nearest_symmetric, quat2mat, quat_angle, yaw_of
+
+if TYPE_CHECKING:
+    from demo.sim.env import Env
+    from demo.sim.task import Expert
+
+CLOSING = 0.15  # measured closedness above which the fingers count as closing/closed
+EMPTY = 0.9  # measured closedness above which the fingers are closed on nothing
+# Position error (m) within which the gripper descends / closes / releases. The open fingers leave
+# ~2 cm of play around a 4 cm cube, so a noisy or drifting operator still gets there.
+GRASP_TOL = 0.015
+
+
+@dataclass
+class BoxState:
+    pos: np.ndarray  # centre, base frame (m)
+    quat: np.ndarray  # wxyz, base frame
+    half: float  # half edge (m)
+    geom_mask: np.ndarray  # boolean over model geoms: the box's geoms
+
+
+def box_yaw(quat: np.ndarray) -> float:
+    """Heading of the box's most horizontal axis (a box looks the same every 90 deg)."""
+    m = quat2mat(quat)
+    k = int(np.argmin(np.abs(m[2])))  # the body axis (column) with the least vertical component
+    return math.atan2(m[1, k], m[0, k])
+
+
+def grasp_yaw(env: "Env", box: BoxState, offset: float, others: Sequence[np.ndarray] = ()) -> float:
+    """Gripper heading that closes the fingers on two faces of the box.
+
+    Of the two face pairs, the one whose finger axis points away from nearby ``others`` (base
+    frame positions within 16 cm) wins, so the open fingers and the wide hand miss them; ties go
+    to the heading nearest the home heading. Of the two headings per pair (fingers are
+    symmetric), the one nearest home.
+    """
+    base = box_yaw(box.quat) + math.pi / 2
+    best, best_cost = 0.0, math.inf
+    for k in range(2):
+        yaw = nearest_symmetric(base + k * math.pi / 2, env.home_yaw, math.pi)
+        axis = (math.sin(yaw), -math.cos(yaw))  # the finger axis (EE y) in the table plane
+        cost = 0.05 * abs(yaw - env.home_yaw)
+        for o in others:
+            dx, dy = o[0] - box.pos[0], o[1] - box.pos[1]
+            dist = math.hypot(dx, dy)
+            if 1e-6 < dist < 0.16:
+                cost += abs(axis[0] * dx + axis[1] * dy) / dist
+        if cost < best_cost:
+            best, best_cost = yaw, cost
+    return best + offset
+
+
+def in_hand(env: "Env", box: BoxState) -> tuple[bool, bool]:
+    """(between the fingers, held): held = between and touched by two finger bodies."""
+    ee_pos, ee_quat = env.ee_pose()
+    rel = quat2mat(ee_quat).T @ (box.pos - ee_pos)
+    between = abs(rel[0]) < 0.02 and abs(rel[1]) < box.half + 0.01 and abs(rel[2]) < 0.6 * box.half + 0.01
+    return between, between and env.finger_contacts(box.geom_mask) >= 2
+
+
+def approach_and_grasp(
+    expert: "Expert",
+    env: "Env",
+    box: BoxState,
+    approach_z: float,
+    depth: float = 0.0,
+    yaw_offset: float = 0.0,
+    others: Sequence[np.ndarray] = (),
+) -> np.ndarray | None:
+    """The action that brings the open gripper above the box, down around it, and closes it.
+
+    Returns None once the box is held (the caller decides where to carry it). ``approach_z`` is
+    the height (base frame) from which the gripper descends; ``depth`` shifts the grasp point up
+    (+) or down (-) from the box centre; ``others`` are positions the hand should keep clear of.
+    """
+    between, held = in_hand(env, box)
+    if held:
+        return None
+    ee_pos, ee_quat = env.ee_pose()
+    closed = env.gripper_closedness()
+    q = down_quat(grasp_yaw(env, box, yaw_offset, others))
+    grasp = box.pos + np.array([0.0, 0.0, depth])
+    if between and CLOSING < closed < EMPTY:
+        return expert.move(env, ee_pos, q, 1.0)  # fingers closing on the box: hold still
+    xy_err = math.hypot(ee_pos[0] - grasp[0], ee_pos[1] - grasp[1])
+    ang = quat_angle(ee_quat, q)
+    z_err = ee_pos[2] - grasp[2]
+    if between and xy_err < GRASP_TOL and abs(z_err) < GRASP_TOL and ang < 0.15:
+        return expert.move(env, grasp, q, 1.0)  # in place: close
+    pre_z = max(approach_z, grasp[2] + 0.02)
+    if closed > CLOSING:
+        # Closed on nothing (or the box slipped): open while backing up to the approach height.
+        return expert.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], min(pre_z, ee_pos[2] + 0.05))]), q, 0.0)
+    low = ee_pos[2] < pre_z - 0.004  # below the approach height: descending (hysteresis)
+    if xy_err < (0.025 if low else 0.02) and ang < (0.2 if low else 0.15):
+        return expert.move(env, grasp, q, 0.0)  # above the box: descend
+    if low:
+        return expert.move(env, np.array([ee_pos[0], ee_pos[1], pre_z]), q, 0.0)  # clear the objects first
+    return expert.move(env, np.array([grasp[0], grasp[1], pre_z]), q, 0.0)  # over to the box
+
+
+def carry_and_place(
+    expert: "Expert",
+    env: "Env",
+    box: BoxState,
+    place: np.ndarray,
+    others_top: float,
+    clearance: float,
+    drop: float = 0.004,
+) -> np.ndarray:
+    """The action that carries a held box to rest its centre at ``place`` and lets go there.
+
+    The box travels with its bottom ``clearance`` (m) above ``others_top`` (the highest top of
+    the other objects, base frame z) until it is over the place; then it descends, correcting its
+    position on the way (sideways moves are safe while its bottom is above ``others_top``), and the
+    gripper opens once the box is within ``drop`` (m) of its resting height. The grasp offset (box
+    centre vs TCP) is read from the state, so a box held off-centre still lands where it should.
+    """
+    ee_pos, ee_quat = env.ee_pose()
+    offset = ee_pos - box.pos  # TCP relative to the box centre, kept while carrying
+    q = down_quat(yaw_of(ee_quat))  # keep the heading it was grasped with
+    xy_err = math.hypot(box.pos[0] - place[0], box.pos[1] - place[1])
+    carry_z = others_top + clearance + box.half
+    lowered = box.pos[2] < carry_z - 0.015
+    if xy_err < 0.02 or (lowered and xy_err < 0.03):
+        if box.pos[2] < place[2] + drop and xy_err < GRASP_TOL:
+            return expert.move(env, ee_pos, q, 0.0)  # in place: open
+        target = place + offset - np.array([0.0, 0.0, 0.002])  # a little low, so contact stops it
+        return expert.move(env, target, q, 1.0, speed=0.6)
+    over_place = np.array([place[0] + offset[0], place[1] + offset[1], carry_z + offset[2]])
+    if lowered and box.pos[2] - box.half > others_top + 0.005:
+        over_place[2] = ee_pos[2]  # above everything already: correct sideways at this height
+        return expert.move(env, over_place, q, 1.0)
+    if lowered:
+        return expert.move(env, np.array([ee_pos[0], ee_pos[1], carry_z + offset[2]]), q, 1.0)  # lift clear
+    return expert.move(env, over_place, q, 1.0)

@@ -1,0 +1,229 @@
+"""Robot configs: what `demo` needs to know about an MJCF arm with a gripper.
+
+A robot config is a small TOML file (paths relative to it)::
+
+    name = "panda_prim"
+    mjcf = "panda.xml"
+    arm_joints = ["joint1", ..., "joint7"]     # the joints the action drives, in action order
+    gripper_actuator = "gripper"              # a position-like actuator (tendon or joint)
+    gripper_range = [0.04, 0.0]               # its ctrl at [open, closed]
+    ee_site = "tcp"                           # end-effector site (z: approach axis, y: finger axis)
+    base_body = "link0"                       # the robot base frame every pose is expressed in
+    home_key = "home"                         # keyframe with the home configuration
+    # optional:
+    ee_site_body = "hand"                     # create `ee_site` on this body (for MJCFs without one)
+    ee_site_pos = [0, 0, 0.1034]              #   ... at this pose in the body frame (m)
+    ee_site_quat = [1, 0, 0, 0]               #   ... (wxyz)
+    gravcomp = true                           # compensate gravity on the robot's bodies (default)
+    max_joint_velocity = 2.0                  # rad/s, for the experts' IK (scalar or one per joint)
+
+Each arm joint must be a hinge or slide joint driven by a position-like actuator (``ctrl`` = joint
+target, e.g. MJCF ``<position>`` or Menagerie's ``<general>`` with ``biasprm="0 -kp -kv"``). The
+finger bodies must be descendants of the EE site's body (the experts detect a grasp by contacts
+of two such bodies with the object).
+The built-in robot (``load_robot(None)``) is ``sim/assets/panda.toml``. A MuJoCo Menagerie Panda
+checkout works with (its MJCF has no TCP site, so the config adds one)::
+
+    name = "menagerie_panda"
+    mjcf = "/path/to/mujoco_menagerie/franka_emika_panda/panda.xml"
+    arm_joints = ["joint1", "joint2", "joint3", "joint4", "joint5", "joint6", "joint7"]
+    gripper_actuator = "actuator8"
+    gripper_range = [255, 0]
+    ee_site = "tcp"
+    ee_site_body = "hand"
+    ee_site_pos = [0, 0, 0.1034]
+    base_body = "link0"
+    home_key = "home"
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from demo.errors import DemoError
+
+ASSETS = Path(__file__).resolve().parent / "assets"
+BUILTIN_CONFIG = ASSETS / "panda.toml"
+
+_REQUIRED = ("mjcf", "arm_joints", "gripper_actuator", "gripper_range", "ee_site", "base_body", "home_key")
+_HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+_OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """A validated robot config. ``home_qpos`` maps every robot hinge/slide joint to its home value."""
+
+    name: str
+    mjcf_path: Path
+    arm_joints: tuple[str, ...]
+    gripper_actuator: str
+    gripper_range: tuple[float, float]
+    ee_site: str
+    base_body: str
+    home_key: str
+    config_path: Path | None = None
+    ee_site_body: str | None = None
+    ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ee_site_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    gravcomp: bool = True
+    max_joint_velocity: tuple[float, ...] = ()
+    home_qpos: dict[str, float] = field(default_factory=dict, compare=False)
+    home_gripper: float = 0.0  # normalised closedness at home (0 open .. 1 closed)
+
+    @property
+    def n_arm(self) -> int:
+        return len(self.arm_joints)
+
+    def spec(self) -> mujoco.MjSpec:
+        """A fresh MjSpec of the robot MJCF, with the configured EE site added if asked."""
+        return robot_spec(self)
+
+    def to_json(self) -> dict[str, Any]:
+        """Small JSON record for store metadata."""
+        return {
+            "name": self.name,
+            "config": str(self.config_path) if self.config_path else None,
+            "mjcf": str(self.mjcf_path),
+            "arm_joints": list(self.arm_joints),
+            "gripper_actuator": self.gripper_actuator,
+            "gripper_range": list(self.gripper_range),
+            "ee_site": self.ee_site,
+            "base_body": self.base_body,
+        }
+
+
+def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
+    try:
+        spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
+    except Exception as exc:  # mujoco raises ValueError with the parser's message
+        raise DemoError(robot.config_path or robot.mjcf_path, f"cannot load MJCF {robot.mjcf_path}: {exc}") from None
+    if robot.ee_site_body:
+        body = spec.body(robot.ee_site_body)
+        if body is None:
+            raise DemoError(robot.config_path, f"ee_site_body '{robot.ee_site_body}' is not a body in {robot.mjcf_path}")
+        body.add_site(name=robot.ee_site, pos=list(robot.ee_site_pos), quat=list(robot.ee_site_quat), size=[0.006, 0, 0])
+    return spec
+
+
+def _floats(where: Path, key: str, value: Any, n: int | None = None) -> tuple[float, ...]:
+    try:
+        out = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
+    except (TypeError, ValueError):
+        raise DemoError(where, f"'{key}' must be a number or a list of numbers, got {value!r}") from None
+    if n is not None and len(out) != n:
+        raise DemoError(where, f"'{key}' must have {n} numbers, got {len(out)}")
+    return out
+
+
+def load_robot(path: str | Path | RobotConfig | None = None) -> RobotConfig:
+    """Read and validate a robot config (``None``: the built-in arm). Bad names raise DemoError."""
+    if isinstance(path, RobotConfig):
+        return path
+    cfg_path = BUILTIN_CONFIG if path is None else Path(path).expanduser()
+    if not cfg_path.is_file():
+        raise DemoError(cfg_path, "robot config not found (expected a .toml file)")
+    try:
+        raw = tomllib.loads(cfg_path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise DemoError(cfg_path, f"not a valid TOML robot config: {exc}") from None
+    missing = [k for k in _REQUIRED if k not in raw]
+    if missing:
+        raise DemoError(cfg_path, f"robot config lacks {', '.join(missing)}")
+    unknown = sorted(set(raw) - set(_REQUIRED) - set(_OPTIONAL))
+    if unknown:
+        raise DemoError(cfg_path, f"unknown robot config key(s): {', '.join(unknown)}")
+    mjcf = (cfg_path.parent / str(raw["mjcf"])).resolve()
+    if not mjcf.is_file():
+        raise DemoError(cfg_path, f"mjcf file {mjcf} does not exist")
+    arm = raw["arm_joints"]
+    if not isinstance(arm, list) or not arm or not all(isinstance(j, str) for j in arm):
+        raise DemoError(cfg_path, "'arm_joints' must be a non-empty list of joint names")
+    grip = _floats(cfg_path, "gripper_range", raw["gripper_range"], 2)
+    if grip[0] == grip[1]:
+        raise DemoError(cfg_path, "'gripper_range' open and closed values must differ")
+    vmax = _floats(cfg_path, "max_joint_velocity", raw.get("max_joint_velocity", 2.0))
+    if len(vmax) == 1:
+        vmax = vmax * len(arm)
+    if len(vmax) != len(arm) or min(vmax) <= 0:
+        raise DemoError(cfg_path, f"'max_joint_velocity' needs 1 or {len(arm)} positive numbers")
+    robot = RobotConfig(
+        name=str(raw.get("name", cfg_path.stem)),
+        mjcf_path=mjcf,
+        arm_joints=tuple(arm),
+        gripper_actuator=str(raw["gripper_actuator"]),
+        gripper_range=(grip[0], grip[1]),
+        ee_site=str(raw["ee_site"]),
+        base_body=str(raw["base_body"]),
+        home_key=str(raw["home_key"]),
+        config_path=cfg_path.resolve(),
+        ee_site_body=raw.get("ee_site_body"),
+        ee_site_pos=_floats(cfg_path, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
+        ee_site_quat=_floats(cfg_path, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
+        gravcomp=bool(raw.get("gravcomp", True)),
+        max_joint_velocity=vmax,
+    )
+    return _validated(robot)
+
+
+def _validated(robot: RobotConfig) -> RobotConfig:
+    """Compile the robot alone, check every name, and read its home configuration."""
+    where = robot.config_path
+    try:
+        model = robot_spec(robot).compile()
+    except DemoError:
+        raise
+    except Exception as exc:
+        raise DemoError(where, f"MJCF {robot.mjcf_path} does not compile: {exc}") from None
+
+    def need(kind: mujoco.mjtObj, name: str, what: str) -> int:
+        i = mujoco.mj_name2id(model, kind, name)
+        if i < 0:
+            raise DemoError(where, f"{what} '{name}' not found in {robot.mjcf_path.name}")
+        return i
+
+    joint_ids = [need(mujoco.mjtObj.mjOBJ_JOINT, j, "arm joint") for j in robot.arm_joints]
+    for name, jid in zip(robot.arm_joints, joint_ids):
+        if int(model.jnt_type[jid]) not in _HINGE_SLIDE:
+            raise DemoError(where, f"arm joint '{name}' must be a hinge or slide joint")
+        arm_actuator_for(model, jid, name, where)
+    act = need(mujoco.mjtObj.mjOBJ_ACTUATOR, robot.gripper_actuator, "gripper actuator")
+    position_gain(model, act, robot.gripper_actuator, where)
+    need(mujoco.mjtObj.mjOBJ_SITE, robot.ee_site, "ee site")
+    need(mujoco.mjtObj.mjOBJ_BODY, robot.base_body, "base body")
+    key = need(mujoco.mjtObj.mjOBJ_KEY, robot.home_key, "home keyframe")
+
+    home: dict[str, float] = {}
+    for j in range(model.njnt):
+        if int(model.jnt_type[j]) in _HINGE_SLIDE:
+            home[model.joint(j).name] = float(model.key_qpos[key, model.jnt_qposadr[j]])
+    open_, closed = robot.gripper_range
+    ctrl = float(model.key_ctrl[key, act]) if model.nu else open_
+    grip = float(np.clip((ctrl - open_) / (closed - open_), 0.0, 1.0)) + 0.0
+    object.__setattr__(robot, "home_qpos", home)
+    object.__setattr__(robot, "home_gripper", grip)
+    return robot
+
+
+def position_gain(model: mujoco.MjModel, act: int, name: str, where: Path | None) -> tuple[float, float]:
+    """(scale, offset) with equilibrium actuator length = scale * ctrl + offset (position servo)."""
+    gain = float(model.actuator_gainprm[act, 0])
+    b0, b1 = float(model.actuator_biasprm[act, 0]), float(model.actuator_biasprm[act, 1])
+    if int(model.actuator_gaintype[act]) != int(mujoco.mjtGain.mjGAIN_FIXED) or b1 >= 0 or gain <= 0:
+        raise DemoError(where, f"actuator '{name}' is not a position actuator (need gain kp and bias -kp)")
+    return gain / -b1, b0 / -b1
+
+
+def arm_actuator_for(model: mujoco.MjModel, joint_id: int, joint_name: str, where: Path | None) -> int:
+    """The position actuator that drives ``joint_id`` directly (transmission = the joint)."""
+    for a in range(model.nu):
+        if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and model.actuator_trnid[a, 0] == joint_id:
+            position_gain(model, a, model.actuator(a).name or f"#{a}", where)
+            return a
+    raise DemoError(where, f"arm joint '{joint_name}' has no position actuator driving it")

@@ -1,0 +1,188 @@
+"""The scene every task builds on: the robot MJCF plus a table, a floor, lights and cameras.
+
+Frames: every pose `demo.sim` reports or accepts is in the robot's **base frame** (the
+``base_body`` of the robot config). The table top is the plane z = 0 of the base frame (the robot
+stands on the table), +x points away from the robot over the table. Scene geoms use contact class
+contype=1 conaffinity=3, so they touch each other and the robot (contype=2, conaffinity=1 on the
+built-in arm; robots with default contact bits touch them too).
+
+Physics: timestep 2 ms, ``implicitfast``; the env steps ``n_substeps`` of them per control step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from demo.sim.geometry import lookat_quat, quat2mat, quat_mul
+from demo.sim.robot import RobotConfig
+
+TIMESTEP = 0.002
+TABLE_SIZE = (0.6, 0.7, 0.025)  # half extents (m) of the table top
+TABLE_CENTER_X = 0.35  # table centre along base x (m)
+SCENE_CONTYPE, SCENE_CONAFFINITY = 1, 3
+CAMERA_NAMES = ("front", "side", "top", "wrist")
+
+# Fixed cameras in the base frame: (eye, look-at point). "wrist" rides on the EE site's body.
+_CAMERAS = {
+    "front": ((1.25, 0.0, 0.6), (0.45, 0.0, 0.08)),
+    "side": ((0.5, -1.05, 0.6), (0.5, 0.0, 0.1)),
+    "top": ((0.5, 0.0, 1.4), (0.5, 0.0, 0.0)),
+}
+
+
+@dataclass(frozen=True)
+class BaseFrame:
+    """Pose of the robot base in the world (static)."""
+
+    pos: np.ndarray
+    quat: np.ndarray
+
+    @property
+    def rot(self) -> np.ndarray:
+        return quat2mat(self.quat)
+
+    def pos_to_world(self, p: Sequence[float]) -> list[float]:
+        return (self.pos + self.rot @ np.asarray(p, dtype=np.float64)).tolist()
+
+    def quat_to_world(self, q: Sequence[float]) -> list[float]:
+        return quat_mul(self.quat, np.asarray(q, dtype=np.float64)).tolist()
+
+
+def base_frame(robot: RobotConfig, spec: mujoco.MjSpec) -> BaseFrame:
+    """Where the base body sits in the robot MJCF's world at its default configuration."""
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    b = model.body(robot.base_body).id
+    return BaseFrame(pos=data.xpos[b].copy(), quat=data.xquat[b].copy())
+
+
+def robot_body_names(robot: RobotConfig, spec: mujoco.MjSpec) -> list[str]:
+    """Bodies of the robot MJCF (before scene objects are added)."""
+    return [b.name for b in spec.bodies if b.name and b.name != "world"]
+
+
+def scene_spec(robot: RobotConfig, max_camera_size: tuple[int, int] = (0, 0)) -> tuple[mujoco.MjSpec, BaseFrame]:
+    """The robot plus table, floor, light and the named cameras; tasks add their objects to it."""
+    spec = robot.spec()
+    base = base_frame(robot, spec)
+    spec.option.timestep = TIMESTEP
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # The robot's keyframes lose their meaning once objects add free joints; the env resets from
+    # robot.home_qpos by joint name instead.
+    for key in list(spec.keys):
+        spec.delete(key)
+    if robot.gravcomp:
+        for body in spec.bodies:
+            if body.name != "world":
+                body.gravcomp = 1.0
+
+    world = spec.worldbody
+    spec.add_material(name="demo_table", rgba=[0.55, 0.45, 0.35, 1.0], specular=0.05, shininess=0.1)
+    table_top = np.array([TABLE_CENTER_X, 0.0, -TABLE_SIZE[2]])
+    world.add_geom(
+        name="table",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=list(TABLE_SIZE),
+        pos=base.pos_to_world(table_top),
+        quat=base.quat.tolist(),
+        material="demo_table",
+        contype=SCENE_CONTYPE,
+        conaffinity=SCENE_CONAFFINITY,
+        friction=[0.6, 0.005, 0.0001],
+    )
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[3.0, 3.0, 0.05],
+        pos=base.pos_to_world([0.0, 0.0, -0.75]),
+        rgba=[0.3, 0.33, 0.36, 1.0],
+        contype=SCENE_CONTYPE,
+        conaffinity=SCENE_CONAFFINITY,
+    )
+    world.add_light(name="key", pos=base.pos_to_world([0.4, -0.4, 2.0]), dir=[0.0, 0.2, -1.0], castshadow=False, diffuse=[0.45] * 3, specular=[0.05] * 3)
+    world.add_light(name="fill", pos=base.pos_to_world([1.5, 0.8, 1.5]), dir=[-0.6, -0.3, -0.7], castshadow=False, diffuse=[0.25] * 3, specular=[0.0] * 3)
+    spec.visual.headlight.diffuse = [0.3] * 3
+    spec.visual.headlight.ambient = [0.15] * 3
+    spec.visual.headlight.specular = [0.0] * 3
+    for name, (eye, target) in _CAMERAS.items():
+        q = lookat_quat(np.array(eye), np.array(target))
+        world.add_camera(name=name, pos=base.pos_to_world(eye), quat=base.quat_to_world(q), fovy=50.0)
+    _add_wrist_camera(robot, spec)
+
+    # Offscreen rendering without shadows and MSAA is ~8x faster under llvmpipe (REFERENCE.md).
+    spec.visual.quality.shadowsize = 0
+    spec.visual.quality.offsamples = 0
+    spec.visual.global_.offwidth = max(640, int(max_camera_size[0]))
+    spec.visual.global_.offheight = max(480, int(max_camera_size[1]))
+    return spec, base
+
+
+def _add_wrist_camera(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
+    site = spec.site(robot.ee_site)
+    body = site.parent
+    site_quat = np.asarray(site.quat, dtype=np.float64)
+    site_rot = quat2mat(site_quat)
+    # Beside the hand, above the TCP, looking past the fingertips along the approach axis (+z).
+    eye, target = np.array([0.05, 0.0, -0.05]), np.array([0.0, 0.0, 0.12])
+    local = lookat_quat(eye, target, up=np.array([1.0, 0.0, 0.0]))
+    pos = np.asarray(site.pos, dtype=np.float64) + site_rot @ eye
+    body.add_camera(name="wrist", pos=pos.tolist(), quat=quat_mul(site_quat, local).tolist(), fovy=80.0)
+
+
+def ik_spec(spec: mujoco.MjSpec, arm_joints: Sequence[str]) -> mujoco.MjSpec:
+    """A copy of the scene for IK: free objects removed, every joint but the arm's frozen.
+
+    Static and mocap geoms (table, obstacles) stay so collision limits can see them.
+    """
+    ik = spec.copy()
+    keep = set(arm_joints)
+    for body in list(ik.bodies):
+        if body.name != "world" and any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in body.joints):
+            ik.delete(body)
+    for group in (ik.actuators, ik.tendons, ik.equalities, ik.sensors, ik.keys, ik.excludes, ik.pairs):
+        for el in list(group):
+            ik.delete(el)
+    for joint in list(ik.joints):
+        if joint.name not in keep:
+            ik.delete(joint)
+    return ik
+
+
+def add_box_body(
+    spec: mujoco.MjSpec,
+    base: BaseFrame,
+    name: str,
+    half: Sequence[float],
+    rgba: Sequence[float],
+    mass: float,
+    friction: Sequence[float] = (0.8, 0.01, 0.001),
+) -> None:
+    """A free-floating box object (its pose is part of qpos)."""
+    body = spec.worldbody.add_body(name=name, pos=base.pos_to_world([0.5, 0.0, half[2]]))
+    body.add_freejoint(name=f"{name}_joint")
+    body.add_geom(
+        name=name,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=list(half),
+        rgba=list(rgba),
+        mass=mass,
+        condim=4,
+        friction=list(friction),
+        contype=SCENE_CONTYPE,
+        conaffinity=SCENE_CONAFFINITY,
+    )
+
+
+def add_mocap_body(spec: mujoco.MjSpec, name: str) -> mujoco.MjsBody:
+    """A mocap body (goal marker, obstacle): its pose lives in mocap_pos/mocap_quat of the state."""
+    return spec.worldbody.add_body(name=name, mocap=True)
+
+
+def add_marker_geom(body: mujoco.MjsBody, gtype: mujoco.mjtGeom, size: Sequence[float], rgba: Sequence[float], **kw) -> None:
+    """A visual-only geom (no contacts)."""
+    body.add_geom(type=gtype, size=list(size), rgba=list(rgba), contype=0, conaffinity=0, mass=0.0, **kw)

@@ -1,0 +1,203 @@
+"""`stack`: stack ``blocks`` = N cubes on a pad, cube 0 at the bottom (N = 1: place a cube on the pad).
+
+A long-horizon task: N pick-and-place cycles, horizon ``60 + 100 N`` control steps, so success can
+be plotted against horizon. Reset: the pad (a marker, mocap) and the N cubes (``cube_size``, 80 g
+each, distinct colours, random headings) are spread over x 0.38..0.64, |y| <= 0.25 m (base frame),
+at least 9 cm apart. Success: every cube i rests on the pad at level i (centre within 2 cm of the
+pad axis and 1 cm of height ``(i + 1/2) cube_size``) and the gripper is open.
+Observations: ``obs.object_pos`` [N,3], ``obs.object_quat`` [N,4], ``obs.goal_pos`` [3] (pad centre
+on the table), base frame.
+
+Expert (state feedback): find the lowest level k whose cube is not in place. Holding cube k: carry
+it over the pad above every other cube and put it down. Holding another cube: park it on a free
+spot of the table. Holding nothing: if a stray cube lies on the pad, or on top of cube k, grasp it
+first (to park it); else grasp cube k (see :mod:`demo.sim.grasp`). All cubes in place: open and
+rise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+from demo.errors import DemoError
+from demo.sim.geometry import canonical
+from demo.sim.grasp import BoxState, approach_and_grasp, carry_and_place, in_hand
+from demo.sim.scene import BaseFrame, add_box_body, add_marker_geom, add_mocap_body
+from demo.sim.task import Expert, ExpertParams, Task, place_free_body
+from demo.store import FeatureSpec
+
+if TYPE_CHECKING:
+    from demo.sim.env import Env
+
+CUBE_MASS = 0.08  # kg
+MAX_BLOCKS = 6
+REGION = ((0.38, 0.64), (-0.25, 0.25))  # x, y ranges (m, base frame) for the pad and the cubes
+SPACING = 0.09  # m between spawn positions
+COLOURS = [(0.85, 0.2, 0.2), (0.2, 0.6, 0.25), (0.2, 0.35, 0.85), (0.9, 0.75, 0.15), (0.6, 0.25, 0.75), (0.15, 0.75, 0.8)]
+# Where a wrongly held cube is put down, first free one wins (base frame x, y).
+PARKING = [(x, y) for y in (-0.28, 0.28, -0.2, 0.2) for x in (0.36, 0.46, 0.56, 0.66)]
+
+
+@dataclasses.dataclass
+class StackParams(ExpertParams):
+    approach_height: float = 0.08  # m above the grasp point where the descent starts
+    clearance: float = 0.03  # m between a carried cube's bottom and the tops of the others
+    grasp_yaw: float = 0.0  # rad added to the face-aligned gripper heading
+    grasp_depth: float = 0.0  # m, grasp point above (+) / below (-) the cube centre
+
+
+class StackExpert(Expert):
+    Params = StackParams
+    VARIATIONS = {"approach_height": (0.05, 0.12), "clearance": (0.02, 0.06), "grasp_yaw": (-0.15, 0.15)}
+    p: StackParams
+
+    def act(self, env: "Env") -> np.ndarray:
+        task: Stack = env.task  # type: ignore[assignment]
+        p = self.p
+        boxes = task.boxes(env)
+        pad = task.goal(env)
+        s = task.size
+        k = task.levels_done(env, boxes, pad)
+        ee_pos, ee_quat = env.ee_pose()
+        held = next((i for i, b in enumerate(boxes) if in_hand(env, b)[1]), None)
+
+        def top_of_others(skip: int) -> float:
+            return max([b.pos[2] + s / 2 for i, b in enumerate(boxes) if i != skip], default=0.0)
+
+        if held is not None and held <= k:
+            # Cube k, or a cube already in place (k counts it) that is still in the hand: put it
+            # at its level, which releases it when it is there.
+            place = np.array([pad[0], pad[1], (held + 0.5) * s])
+            return carry_and_place(self, env, boxes[held], place, top_of_others(held), p.clearance)
+        if held is not None:
+            spot = self._parking(boxes, pad, held, s)
+            return carry_and_place(self, env, boxes[held], spot, top_of_others(held), p.clearance)
+        if k == len(boxes):
+            top = top_of_others(-1)
+            return self.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], top + 0.08)]), ee_quat, 0.0)
+        target = self._next_to_grasp(boxes, pad, k, s)
+        b = boxes[target]
+        approach_z = max(b.pos[2] + p.grasp_depth + p.approach_height, top_of_others(target) + 0.04)
+        others = [o.pos for i, o in enumerate(boxes) if i != target] + [pad]
+        a = approach_and_grasp(self, env, b, approach_z, p.grasp_depth, p.grasp_yaw, others)
+        if a is None:  # held now but the contact check above just missed it: hold still
+            return self.move(env, ee_pos, ee_quat, 1.0)
+        return a
+
+    @staticmethod
+    def _next_to_grasp(boxes: list[BoxState], pad: np.ndarray, k: int, s: float) -> int:
+        """Cube k, unless a stray cube sits on the pad's free levels or on top of cube k."""
+        for i, b in enumerate(boxes):
+            if i == k:
+                continue
+            on_pad = math.hypot(b.pos[0] - pad[0], b.pos[1] - pad[1]) < s * 1.2 and b.pos[2] > (k - 0.5) * s
+            on_k = math.hypot(b.pos[0] - boxes[k].pos[0], b.pos[1] - boxes[k].pos[1]) < s and b.pos[2] > boxes[k].pos[2] + s / 2
+            if i > k and (on_pad or on_k):
+                return i
+        return k
+
+    @staticmethod
+    def _parking(boxes: list[BoxState], pad: np.ndarray, held: int, s: float) -> np.ndarray:
+        for x, y in PARKING:
+            free = math.hypot(x - pad[0], y - pad[1]) > 2.5 * s and all(
+                math.hypot(x - b.pos[0], y - b.pos[1]) > 2.5 * s for i, b in enumerate(boxes) if i != held
+            )
+            if free:
+                return np.array([x, y, s / 2])
+        return np.array([boxes[held].pos[0], boxes[held].pos[1], s / 2])
+
+
+class Stack(Task):
+    name = "stack"
+    defaults = {"blocks": 2, "cube_size": 0.04}
+    expert_class = StackExpert
+
+    def __init__(self, **options):
+        super().__init__(**options)
+        try:
+            self.n = int(self.options["blocks"])
+        except (TypeError, ValueError):
+            raise DemoError("stack", f"blocks must be an integer, got {self.options['blocks']!r}") from None
+        if not 1 <= self.n <= MAX_BLOCKS:
+            raise DemoError("stack", f"blocks must be within 1..{MAX_BLOCKS}, got {self.n}")
+        self.options["blocks"] = self.n
+        self.size = float(self.options["cube_size"])
+        if not 0.03 <= self.size <= 0.05:
+            raise DemoError("stack", f"cube_size must be within 0.03..0.05 m, got {self.size}")
+
+    @property
+    def horizon(self) -> int:
+        return 60 + 100 * self.n
+
+    def build(self, spec: mujoco.MjSpec, base: BaseFrame) -> None:
+        h = self.size / 2
+        for i in range(self.n):
+            add_box_body(spec, base, f"cube{i}", [h] * 3, [*COLOURS[i], 1.0], CUBE_MASS)
+        pad = add_mocap_body(spec, "pad")
+        add_marker_geom(pad, mujoco.mjtGeom.mjGEOM_BOX, [h + 0.01, h + 0.01, 0.0008], [0.1, 0.8, 0.2, 0.6], pos=[0, 0, 0.0008])
+
+    def bind(self, env: "Env") -> None:
+        m = env.model
+        self.bodies = [m.body(f"cube{i}").id for i in range(self.n)]
+        self.joints = [m.joint(f"cube{i}_joint").id for i in range(self.n)]
+        self.masks = []
+        for i in range(self.n):
+            mask = np.zeros(m.ngeom, dtype=bool)
+            mask[m.geom(f"cube{i}").id] = True
+            self.masks.append(mask)
+        self.mocap = int(m.body_mocapid[m.body("pad").id])
+
+    def reset(self, env: "Env", rng: np.random.Generator) -> None:
+        spots: list[np.ndarray] = []
+        while len(spots) < self.n + 1:
+            p = np.array([rng.uniform(*REGION[0]), rng.uniform(*REGION[1])])
+            if all(np.linalg.norm(p - q) >= SPACING for q in spots):
+                spots.append(p)
+        pad, cubes = spots[0], spots[1:]
+        env.set_mocap_pose(self.mocap, np.array([pad[0], pad[1], 0.0]))
+        for j, xy in zip(self.joints, cubes):
+            place_free_body(env, j, np.array([xy[0], xy[1], self.size / 2]), rng.uniform(-math.pi, math.pi))
+
+    def goal(self, env: "Env") -> np.ndarray:
+        return env.mocap_pose(self.mocap)[0]
+
+    def boxes(self, env: "Env") -> list[BoxState]:
+        out = []
+        for b, mask in zip(self.bodies, self.masks):
+            pos, quat = env.body_pose(b)
+            out.append(BoxState(pos, quat, self.size / 2, mask))
+        return out
+
+    def levels_done(self, env: "Env", boxes: list[BoxState], pad: np.ndarray, xy_tol: float = 0.017, z_tol: float = 0.008) -> int:
+        """How many cubes, from the bottom, rest at their level on the pad."""
+        for i, b in enumerate(boxes):
+            if math.hypot(b.pos[0] - pad[0], b.pos[1] - pad[1]) > xy_tol or abs(b.pos[2] - (i + 0.5) * self.size) > z_tol:
+                return i
+        return len(boxes)
+
+    def features(self, env: "Env") -> dict[str, FeatureSpec]:
+        n = self.n
+        return {
+            "obs.object_pos": FeatureSpec((n, 3), "float32", "cube centres (cube 0 first), base frame", "m", ("x", "y", "z")),
+            "obs.object_quat": FeatureSpec((n, 4), "float32", "cube orientations, base frame, w >= 0", "1", ("w", "x", "y", "z")),
+            "obs.goal_pos": FeatureSpec((3,), "float32", "pad centre on the table, base frame", "m", ("x", "y", "z")),
+        }
+
+    def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
+        pos = np.empty((self.n, 3), dtype=np.float32)
+        quat = np.empty((self.n, 4), dtype=np.float32)
+        for i, b in enumerate(self.bodies):
+            p, q = env.body_pose(b)
+            pos[i], quat[i] = p, canonical(q)
+        out["obs.object_pos"] = pos
+        out["obs.object_quat"] = quat
+        out["obs.goal_pos"] = self.goal(env).astype(np.float32)
+
+    def success(self, env: "Env") -> bool:
+        done = self.levels_done(env, self.boxes(env), self.goal(env), xy_tol=0.02, z_tol=0.01)
+        return done == self.n and env.gripper_closedness() < 0.5
