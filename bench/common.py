@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 
@@ -32,6 +33,24 @@ def rate(fn: Callable[[], Any], items_per_call: float, min_seconds: float = 1.0,
             break
     elapsed = time.perf_counter() - start
     return {"per_s": calls * items_per_call / elapsed, "best_slice_per_s": max(slices), "seconds": elapsed, "calls": calls}
+
+
+@contextlib.contextmanager
+def one_core() -> Iterator[int | None]:
+    """Pin this process to one CPU (the lowest it may run on) while measuring, where the OS allows it.
+
+    Yields the CPU number, or None where affinity cannot be set (the figure is then unpinned).
+    """
+    if not hasattr(os, "sched_setaffinity"):
+        yield None
+        return
+    before = os.sched_getaffinity(0)
+    cpu = min(before)
+    os.sched_setaffinity(0, {cpu})
+    try:
+        yield cpu
+    finally:
+        os.sched_setaffinity(0, before)
 
 
 def machine() -> dict[str, Any]:

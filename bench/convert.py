@@ -13,19 +13,17 @@ smooth joint trajectories of the robot within its joint limits, 150-frame episod
 
 from __future__ import annotations
 
-import contextlib
-import os
 import platform
-import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from demo.bench.common import one_core
+from demo.collect.ik_placo import quiet_stdout
 from demo.convert import representations as reps
 from demo.convert.context import RobotContext
 from demo.convert.convert import Converter
@@ -51,29 +49,6 @@ def synthetic_episodes(kin: Kinematics, frames: int, rng: np.random.Generator) -
     grip = (rng.uniform(size=frames) > 0.5).astype(np.float64)
     action = np.concatenate([q, grip[:, None]], axis=1).astype(np.float32)
     return action, start, seg
-
-
-def _pin_one_core() -> tuple[set[int] | None, str]:
-    if not hasattr(os, "sched_setaffinity"):
-        return None, "unpinned (no sched_setaffinity)"
-    before = os.sched_getaffinity(0)
-    core = min(before)
-    os.sched_setaffinity(0, {core})
-    return before, f"1 core (cpu {core})"
-
-
-@contextlib.contextmanager
-def _quiet_stdout() -> Iterator[None]:
-    """Silence C++ code printing to file descriptor 1 (placo announces every model it loads)."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
 
 
 def _best_of(fn: Any, repeats: int) -> float:
@@ -112,9 +87,9 @@ def run_bench(frames: int = 200_000, robot: str | None = None, placo_frames: int
             d.qpos[adr] = q64[i]
             mujoco.mj_kinematics(m, d)
 
-    previous, cpu = _pin_one_core()
     results: dict[str, dict[str, Any]] = {}
-    try:
+    with one_core() as core:
+        cpu = "unpinned (no sched_setaffinity)" if core is None else f"1 core (cpu {core})"
         ours()  # warm-up (allocations, caches)
         t_ours = _best_of(ours, 3)
         results["joint_pos->ee7"] = {"frames_per_s": frames / t_ours, "seconds": t_ours,
@@ -123,9 +98,6 @@ def run_bench(frames: int = 200_000, robot: str | None = None, placo_frames: int
         results["mj_kinematics loop"] = {"frames_per_s": frames / t_mj, "seconds": t_mj,
                                          "note": "reference: set qpos + mj_kinematics per frame, best of 2"}
         results["placo FK loop"] = _placo(rb, q64[:placo_frames], kin)
-    finally:
-        if previous is not None:
-            os.sched_setaffinity(0, previous)
     pos_err, rot_err = kin.verify(q64[:: max(1, frames // 2000)])
     ours_fps = results["joint_pos->ee7"]["frames_per_s"]
     placo_fps = results["placo FK loop"].get("frames_per_s")
@@ -158,7 +130,7 @@ def _placo(rb: Any, q: np.ndarray, kin: Kinematics) -> dict[str, Any]:
         path = Path(tmp) / "robot.xml"
         path.write_text(spec.to_xml())
         try:
-            with _quiet_stdout():
+            with quiet_stdout():
                 robot = placo.RobotWrapper(str(path), placo.Flags.mjcf | placo.Flags.ignore_collisions)
         except Exception as exc:
             return {"error": f"placo cannot load the robot: {str(exc).splitlines()[-1][:200]}"}

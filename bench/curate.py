@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from demo.bench.common import machine
+from demo.bench.common import machine, one_core
 from demo.curate.curate import ALL_SIGNALS
 
 TARGET_SECONDS_PER_1M = 20.0
@@ -73,14 +73,11 @@ def _figure(path: Path) -> tuple[float, dict[str, float], dict[str, Any]]:
 
 
 def _child(path: str, repeats: int, queue: Any) -> None:
-    try:
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    except (AttributeError, OSError):  # not Linux: the single-threaded BLAS still holds
-        pass
     ref, fig = [], []
-    for _ in range(repeats):
-        ref.append(_reference(Path(path)))
-        fig.append(_figure(Path(path)))
+    with one_core():  # where affinity cannot be set, the single-threaded BLAS still holds
+        for _ in range(repeats):
+            ref.append(_reference(Path(path)))
+            fig.append(_figure(Path(path)))
     queue.put((ref, fig))
 
 

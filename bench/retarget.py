@@ -12,14 +12,11 @@ streams at 30-90 Hz). The process is pinned to one CPU while it measures.
 
 from __future__ import annotations
 
-import contextlib
-import os
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
-from demo.bench.common import machine, rate
+from demo.bench.common import machine, one_core, rate
 from demo.collect.human import InputEpisode
 from demo.collect.retarget import IK_BACKENDS, Retargeter, RetargetParams
 from demo.collect.vr import HandMapper, HandRetargeter, PoseTrack, resample, smooth
@@ -37,21 +34,6 @@ def loop_track(env: Any, seconds: float = 4.0, rate_hz: float = 60.0, seed: int 
     pos += rng.normal(0.0, 0.002, pos.shape)
     quat = np.tile(quat0, (len(t), 1))
     return PoseTrack(InputEpisode(1, None, None), t, pos, quat, np.zeros(len(t)), np.ones(len(t), dtype=bool))
-
-
-@contextlib.contextmanager
-def one_core() -> Iterator[int | None]:
-    """Pin this process to one CPU (the one it runs on) while measuring, where the OS allows it."""
-    if not hasattr(os, "sched_setaffinity"):
-        yield None
-        return
-    before = os.sched_getaffinity(0)
-    cpu = min(before)
-    os.sched_setaffinity(0, {cpu})
-    try:
-        yield cpu
-    finally:
-        os.sched_setaffinity(0, before)
 
 
 def measure_backend(env: Any, ik: str, track: PoseTrack, seconds: float) -> dict[str, Any]:
