@@ -8,7 +8,7 @@ from demo.cli.main import app
 from demo.cli.output import err_console
 
 # Subcommands that exist: one module each, imported for its @app.command() side effect.
-from demo.cli import bench, collect, info  # noqa: F401,E402
+from demo.cli import bench, collect, info, quickstart  # noqa: F401,E402
 from demo.cli import export, import_, view  # noqa: F401,E402  (interop, view)
 from demo.cli import curate  # noqa: F401,E402
 from demo.cli import convert  # noqa: F401,E402
