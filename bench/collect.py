@@ -6,8 +6,10 @@ store's writer in both, as in ``demo collect``), and with everything in one proc
 first committed episode to the last, so worker start-up (importing MuJoCo, building the scene) is
 reported separately and not counted.
 
-Reference, same run: bare ``mj_step(model, data, nstep=n_substeps)`` on the same scene, in control
-steps per second, the physical limit of a simulator-bound collector.
+Reference, same run: bare ``mj_step(model, data, nstep=n_substeps)`` replaying the expert's actions
+on the same scene (so with the same contacts), in control steps per second: the physical limit of
+a simulator-bound collector. It is measured before and after the collection runs and the faster of
+the two is used, so a busy moment on a shared machine cannot flatter the ratio.
 """
 
 from __future__ import annotations
@@ -17,30 +19,40 @@ import time
 from pathlib import Path
 from typing import Any
 
-import mujoco
 
 from demo.bench.common import machine
 from demo.collect.scripted import CollectConfig, collect_scripted, make_env_for
+from demo.sim.benchmark import expert_actions, replay_physics
 
 TARGET_RATIO_TO_PHYSICS = 0.5
 TARGET_TWO_WORKER_SPEEDUP = 1.7
 
 
-def raw_physics_rate(config: CollectConfig, seconds: float) -> dict[str, float]:
+def raw_physics_rate(config: CollectConfig, seconds: float, episodes: int = 8) -> dict[str, float]:
+    """Wall-clock control steps/s of bare ``mj_step`` replaying the expert's actions of the same task
+    (same scene, same contacts); resets are timed apart and left out."""
     env = make_env_for(config)
     try:
-        env.reset(0)
-        model, data = env.model, env.data
+        seeds = list(range(episodes))
+        actions = expert_actions(env, seeds)
+        steps_per_pass = sum(len(a) for a in actions.values())
+        passes = 0
+        replay, resets = 0.0, 0.0
+        while replay < seconds:
+            t0 = time.perf_counter()
+            replay_physics(env, actions)
+            t1 = time.perf_counter()
+            for s in seeds:
+                env.reset(s)
+            resets += time.perf_counter() - t1
+            replay += t1 - t0
+            passes += 1
+        physics_s = replay - resets
         n = env.n_substeps
-        steps, start = 0, time.perf_counter()
-        while time.perf_counter() - start < seconds:
-            for _ in range(100):
-                mujoco.mj_step(model, data, nstep=n)
-            steps += 100
-        elapsed = time.perf_counter() - start
     finally:
         env.close()
-    return {"control_steps_per_s": steps / elapsed, "mj_step_per_s": steps * n / elapsed, "n_substeps": n}
+    steps = passes * steps_per_pass
+    return {"control_steps_per_s": steps / physics_s, "mj_step_per_s": steps * n / physics_s, "n_substeps": n}
 
 
 def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict[str, float]:
@@ -69,13 +81,15 @@ def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict
     }
 
 
-def run(task: str = "pick", episodes: int = 40, seconds: float = 3.0, seed: int = 0) -> dict[str, Any]:
+def run(task: str = "pick", episodes: int = 120, seconds: float = 3.0, seed: int = 0) -> dict[str, Any]:
     config = CollectConfig(task=task, episodes=episodes, seed=seed)
-    physics = raw_physics_rate(config, seconds)
+    before = raw_physics_rate(config, seconds)
     with tempfile.TemporaryDirectory() as tmp:
         inline = timed_collection(config, 0, Path(tmp))
         one = timed_collection(config, 1, Path(tmp))
         two = timed_collection(config, 2, Path(tmp))
+    after = raw_physics_rate(config, seconds)
+    physics = max(before, after, key=lambda r: r["control_steps_per_s"])
     ratio = one["frames_per_s"] / physics["control_steps_per_s"]
     speedup = two["frames_per_s"] / one["frames_per_s"]
     return {
@@ -84,7 +98,7 @@ def run(task: str = "pick", episodes: int = 40, seconds: float = 3.0, seed: int 
         "single_process": inline,
         "one_worker": one,
         "two_workers": two,
-        "reference": "bare mj_step(m, d, nstep=n_substeps) on the same scene, control steps/s",
+        "reference": "bare mj_step(m, d, nstep=n_substeps) replaying the expert's actions, control steps/s (best of before/after)",
         "reference_physics": physics,
         "ratio_to_physics": ratio,
         "two_worker_speedup": speedup,

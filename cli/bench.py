@@ -46,7 +46,7 @@ def bench_load(
 def bench_collect(
     json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
     task: str = typer.Option("pick"),
-    episodes: int = typer.Option(40, help="Episodes per measurement."),
+    episodes: int = typer.Option(120, help="Episodes per measurement."),
     seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference."),
     seed: int = typer.Option(0),
 ) -> None:

@@ -23,10 +23,8 @@ import numpy as np
 from demo.sim.env import make_env
 
 
-def step_cost(task: str = "pick", episodes: int = 4, reps: int = 3, **task_options: Any) -> dict[str, Any]:
-    env = make_env(task, **task_options)
-    m, d = env.model, env.data
-    seeds = list(range(episodes))
+def expert_actions(env: Any, seeds: list[int]) -> dict[int, list[np.ndarray]]:
+    """The expert's actions from each seed's reset until success (or the horizon)."""
     actions: dict[int, list[np.ndarray]] = {}
     for s in seeds:
         env.reset(s)
@@ -37,15 +35,28 @@ def step_cost(task: str = "pick", episodes: int = 4, reps: int = 3, **task_optio
             actions[s].append(a)
             if env.step(a)[2]:
                 break
+    return actions
+
+
+def replay_physics(env: Any, actions: dict[int, list[np.ndarray]]) -> None:
+    """Bare physics on recorded actions: per action set ``ctrl`` and ``mj_step(nstep=n_substeps)``."""
+    m, d = env.model, env.data
+    for s, episode in actions.items():
+        env.reset(s)
+        for a in episode:
+            d.ctrl[env.arm_act] = env._arm_ctrl(a[:-1])
+            d.ctrl[env.grip_act] = env._gripper_ctrl(a[-1])
+            mujoco.mj_step(m, d, nstep=env.n_substeps)
+
+
+def step_cost(task: str = "pick", episodes: int = 4, reps: int = 3, **task_options: Any) -> dict[str, Any]:
+    env = make_env(task, **task_options)
+    seeds = list(range(episodes))
+    actions = expert_actions(env, seeds)
     steps = sum(len(v) for v in actions.values())
 
     def physics() -> None:
-        for s in seeds:
-            env.reset(s)
-            for a in actions[s]:
-                d.ctrl[env.arm_act] = env._arm_ctrl(a[:-1])
-                d.ctrl[env.grip_act] = env._gripper_ctrl(a[-1])
-                mujoco.mj_step(m, d, nstep=env.n_substeps)
+        replay_physics(env, actions)
 
     def env_step() -> None:
         for s in seeds:
