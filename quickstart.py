@@ -3,7 +3,8 @@
 1. collect  scripted ``pick`` demonstrations from a mix of operators (expert, and some poor ones),
 2. curate   drop the failed / jerky / idle episodes and trim idle starts,
 3. convert  re-express the curated actions as ee7 and measure the round-trip error,
-4. train    behaviour cloning (MLP, action chunks) on the curated joint-position demonstrations,
+4. train    behaviour cloning (MLP predicting 16-step action chunks, executed with ACT-style temporal
+            ensembling) on the curated joint-position demonstrations,
 5. eval     roll the policy out on held-out initial states and report success with a 95% interval.
 
 Each stage is the same library call its subcommand makes; the run directory keeps every artefact
@@ -25,9 +26,9 @@ from demo.errors import DemoError
 class QuickstartConfig:
     out: str = "quickstart"  # run directory
     task: str = "pick"
-    expert_episodes: int = 60
+    expert_episodes: int = 100
     poor_episodes: int = 20  # mixed in so that curation has something to find
-    steps: int = 4000  # BC gradient steps
+    steps: int = 5000  # BC gradient steps
     eval_episodes: int = 50
     workers: int = 2
     seed: int = 0
@@ -79,7 +80,7 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
 
     def train_stage() -> dict[str, Any]:
         tc = TrainConfig(data=str(curated), out=str(run_dir), algo="bc", seed=config.seed, steps=config.steps,
-                         chunk=8, execute=4, n_obs=1)
+                         chunk=16, ensemble=0.01)
         summary = train(tc, overwrite=True, command="demo quickstart")
         return {"run": str(run_dir), "steps": config.steps, **{k: v for k, v in summary.items() if k != "out"}}
 

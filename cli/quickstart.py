@@ -30,9 +30,9 @@ def _stage_row(name: str, r: dict, seconds: float) -> tuple[str, str, str]:
 def quickstart(
     out: Path = typer.Option(Path("quickstart"), "--out", "-o", help="Run directory for every artefact."),
     task: str = typer.Option("pick", help="Built-in task."),
-    episodes: int = typer.Option(60, help="Expert demonstrations to collect."),
+    episodes: int = typer.Option(100, help="Expert demonstrations to collect."),
     poor: int = typer.Option(20, help="Extra demonstrations from a simulated poor operator (for curation)."),
-    steps: int = typer.Option(4000, help="BC training steps."),
+    steps: int = typer.Option(5000, help="BC training steps."),
     eval_episodes: int = typer.Option(50, help="Evaluation rollouts."),
     workers: int = typer.Option(2, help="Simulation worker processes."),
     seed: int = typer.Option(0),

@@ -1,0 +1,84 @@
+"""Executing a policy: observation history, receding-horizon chunks, ACT temporal ensembling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from demo.train.actor import ExecConfig, PolicyActor
+from demo.train.normalizer import MinMaxNormalizer
+from demo.train.observation import ObsSpec
+from demo.train.policy import Policy, PolicySpec
+from demo.train.relative import RelativeActions
+
+
+class Ramp(Policy):
+    """Chunk step k = (last observation) + 10 * k, plus the first history entry in dim 1."""
+
+    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        k = torch.arange(self.spec.horizon, dtype=obs.dtype)[None, :, None]
+        out = obs[:, -1:, :1] + 10 * k
+        return torch.cat([out, obs[:, :1, :1].expand_as(out)], dim=-1)
+
+
+def make_actor(horizon: int, execution: ExecConfig, n_obs: int = 1, relative: RelativeActions | None = None) -> PolicyActor:
+    policy = Ramp(PolicySpec(obs_dim=1, action_dim=2, n_obs=n_obs, horizon=horizon), None)
+    identity = MinMaxNormalizer(np.array([-1.0, -1.0]), np.array([1.0, 1.0]))
+    # Observations 0..9 normalise to 0..0.9 (x / 10), inside the clip range.
+    return PolicyActor(policy, ObsSpec(("obs.x",), (1,)), MinMaxNormalizer(np.array([-10.0]), np.array([10.0])),
+                       identity, execution, relative=relative)
+
+
+def run(actor: PolicyActor, steps: int, scale: float = 1.0) -> np.ndarray:
+    actor.reset(0)
+    return np.array([actor.act({"obs.x": np.array([float(t) * scale])}) for t in range(steps)])
+
+
+def test_single_step_policy_follows_the_observation() -> None:
+    actions = run(make_actor(1, ExecConfig(1, None)), 5)
+    assert np.allclose(actions[:, 0], [0, 0.1, 0.2, 0.3, 0.4])
+
+
+def test_receding_horizon_executes_k_steps_per_query() -> None:
+    actor = make_actor(4, ExecConfig(execute=3, ensemble=None))
+    actions = run(actor, 7)
+    # Queries at t = 0, 3, 6; step t executes chunk[t - query] = query / 10 + 10 (t - query).
+    assert np.allclose(actions[:, 0], [0, 10, 20, 0.3, 10.3, 20.3, 0.6])
+    assert actor.queries == 3
+
+
+def test_temporal_ensembling_weights_older_chunks_first() -> None:
+    m = 0.5
+    actor = make_actor(3, ExecConfig(execute=1, ensemble=m))
+    actions = run(actor, 4)
+    # At t = 2 the chunks from t = 0, 1, 2 predict 0 + 20, 0.1 + 10, 0.2 + 0; weights exp(-m i), oldest i = 0.
+    w = np.exp(-m * np.arange(3))
+    assert actions[2, 0] == pytest.approx(float((w * [20, 10.1, 0.2]).sum() / w.sum()), rel=1e-6)
+    # At t = 3 the chunk from t = 0 has expired.
+    assert actions[3, 0] == pytest.approx(float((w * [20.1, 10.2, 0.3]).sum() / w.sum()), rel=1e-6)
+    assert actor.queries == 4
+
+
+def test_history_repeats_the_first_frame_at_the_start() -> None:
+    actions = run(make_actor(1, ExecConfig(1, None), n_obs=3), 5)
+    # Dim 1 echoes the oldest history entry: frame 0 until the history is full, then t - 2.
+    assert np.allclose(actions[:, 1], [0, 0, 0, 0.1, 0.2])
+
+
+def test_relative_actions_add_the_query_frame_base() -> None:
+    relative = RelativeActions("obs.x", (0,), (1,))
+    actor = make_actor(2, ExecConfig(execute=2, ensemble=None), relative=relative)
+    actions = run(actor, 4)
+    # Dim 1 (normalised obs) + base (the query frame's raw obs.x): queries at t = 0, 2.
+    assert np.allclose(actions[:, 1], [0, 0, 2.2, 2.2])
+
+
+def test_far_out_observations_are_clipped() -> None:
+    actions = run(make_actor(1, ExecConfig(1, None)), 2, scale=1000.0)
+    assert np.allclose(actions[:, 0], [0, 5])  # 1000 / 10 = 100 half-ranges, clipped to OBS_CLIP
+
+
+def test_execution_is_checked_against_the_chunk() -> None:
+    with pytest.raises(ValueError):
+        make_actor(2, ExecConfig(execute=3))

@@ -1,0 +1,36 @@
+"""The compounding-errors experiment end to end on a miniature: equal label budgets, JSON, PNG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from demo.store import EpisodeStore
+from demo.train.compounding import CompoundingConfig, format_table, run
+
+torch.set_num_threads(1)
+
+
+def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
+    config = CompoundingConfig(out=str(tmp_path), blocks=(1,), demos=3, pool=6, rounds=1, episodes_per_round=1,
+                               steps=30, round_steps=20, hidden=(16,), batch_size=32, chunk=4, eval_episodes=2)
+    result = run(config, log=lambda text: None)
+    (row,) = result["rows"]
+    assert row["blocks"] == 1 and row["horizon"] == 160
+    budget = row["expert_labels"]
+    assert row["dagger"]["expert_labels"] == budget
+    # BC gets the fewest leading demonstrations whose frames reach DAgger's label count.
+    with EpisodeStore.open(tmp_path / "stack1" / "pool.zarr") as pool:
+        cumulative = np.cumsum(pool.episode_lengths)
+    k = row["bc_demos"]
+    assert cumulative[k - 1] >= budget and (k == 1 or cumulative[k - 2] < budget)
+    assert row["bc"]["expert_labels"] == row["bc_chunk"]["expert_labels"] == cumulative[k - 1]
+    for method in ("bc", "dagger", "bc_chunk"):
+        assert row[method]["episodes"] == 2 and 0.0 <= row[method]["success_rate"] <= 1.0
+    assert Path(result["png"]).stat().st_size > 5000
+    assert "DAgger" in format_table(result)
+    # A rerun reuses every stage (stores, runs, evaluations) instead of repeating it.
+    again = run(config, log=lambda text: None)
+    assert again["rows"][0]["bc"] == row["bc"] and again["seconds"] < result["seconds"]

@@ -1,0 +1,67 @@
+"""The policy's observation vector: key choice, quaternions as 6D rotations, relative positions."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from demo.errors import DemoError
+from demo.store import FeatureSpec
+from demo.train.observation import ObsSpec, quat_to_rot6d
+
+FEATURES = {
+    "obs.joint_pos": FeatureSpec((7,)),
+    "obs.joint_vel": FeatureSpec((7,)),
+    "obs.ee_pos": FeatureSpec((3,)),
+    "obs.ee_quat": FeatureSpec((4,)),
+    "obs.object_pos": FeatureSpec((2, 3)),
+    "obs.object_quat": FeatureSpec((2, 4)),
+    "obs.image_front": FeatureSpec((8, 8, 3), "uint8"),
+    "sim.state": FeatureSpec((20,), "float64"),
+}
+
+
+def test_default_keys_drop_velocities_and_images_and_add_offsets() -> None:
+    spec = ObsSpec.from_features(FEATURES)
+    assert spec.keys == ("obs.joint_pos", "obs.ee_pos", "obs.ee_quat", "obs.object_pos", "obs.object_quat",
+                         "obs.object_pos-obs.ee_pos")
+    assert spec.dims == (7, 3, 6, 6, 12, 6)
+    assert spec.source_keys == ["obs.joint_pos", "obs.ee_pos", "obs.ee_quat", "obs.object_pos", "obs.object_quat"]
+    assert "obs.joint_vel" in ObsSpec.from_features(FEATURES, ["all"]).keys
+    with pytest.raises(DemoError, match="not a low-dimensional"):
+        ObsSpec.from_features(FEATURES, ["obs.image_front"])
+
+
+def test_vector_and_batch_agree_and_transform() -> None:
+    spec = ObsSpec.from_features(FEATURES)
+    rng = np.random.default_rng(0)
+    frames = {k: rng.normal(size=(5, *f.shape)).astype(np.float32) for k, f in FEATURES.items() if k != "obs.image_front"}
+    batch = spec.concat(frames)
+    assert batch.shape == (5, spec.dim)
+    for i in range(5):
+        assert np.allclose(spec.vector({k: v[i] for k, v in frames.items()}), batch[i])
+    offsets = batch[:, -6:].reshape(5, 2, 3)
+    assert np.allclose(offsets, frames["obs.object_pos"] - frames["obs.ee_pos"][:, None], atol=1e-6)
+    # A quaternion and its negative give the same input (stores flip signs to keep w >= 0).
+    flipped = dict(frames, **{"obs.ee_quat": -frames["obs.ee_quat"]})
+    assert np.allclose(spec.concat(flipped), batch)
+
+
+def test_rot6d_is_the_rotation_matrix_columns() -> None:
+    q = np.random.default_rng(1).normal(size=(10, 4))
+    for row, six in zip(q, quat_to_rot6d(q)):
+        m = np.zeros(9)
+        mujoco.mju_quat2Mat(m, row / np.linalg.norm(row))
+        m = m.reshape(3, 3)
+        assert np.allclose(six, np.concatenate([m[:, 0], m[:, 1]]), atol=1e-6)
+
+
+def test_json_round_trip_and_checks_against_an_environment() -> None:
+    spec = ObsSpec.from_features(FEATURES)
+    assert ObsSpec.from_json(spec.to_json()) == spec
+    spec.check_against(FEATURES, "env")
+    with pytest.raises(DemoError, match="no observation 'obs.object_quat'"):
+        spec.check_against({k: v for k, v in FEATURES.items() if k != "obs.object_quat"}, "env")
+    with pytest.raises(DemoError, match="different size"):
+        spec.check_against({**FEATURES, "obs.object_pos": FeatureSpec((3, 3))}, "env")

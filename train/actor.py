@@ -1,0 +1,129 @@
+"""Running a trained policy step by step: observation history, action chunks, temporal ensembling.
+
+This is the one place where a policy meets an environment, used by evaluation, by DAgger's
+rollouts and by periodic evaluation during training, so that all of them execute the policy exactly
+as it was trained:
+
+- **observation history**: the last ``n_obs`` frames, the first frame repeated at the episode
+  start (the same edge padding as :class:`demo.store.WindowSampler` in training);
+- **chunking**: a query returns ``horizon`` actions, step 0 for the current frame; a new query is
+  made every ``execute`` steps (receding horizon);
+- **temporal ensembling** (ACT, Zhao et al. 2023): with ``ensemble = m`` the action for step ``t``
+  is the weighted mean over every stored chunk that covers ``t``, weight ``exp(-m * i)`` with
+  ``i = 0`` for the oldest chunk; ``ensemble = None`` executes the newest chunk only.
+
+Actions leave in the policy's action representation and go through an action adapter
+(:mod:`demo.train.actions`) to become what the environment takes.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.train.actions import ActionAdapter
+from demo.train.normalizer import OBS_CLIP, MinMaxNormalizer
+from demo.train.observation import ObsSpec
+from demo.train.policy import Policy
+from demo.train.relative import RelativeActions
+
+
+@dataclass
+class ExecConfig:
+    """How chunks are executed (recorded in the run; ``demo eval`` may override it)."""
+
+    execute: int = 1  # actions executed from each chunk before the next query
+    ensemble: float | None = None  # temporal ensembling decay m (ACT uses 0.01); None = off
+
+    def check(self, horizon: int) -> None:
+        if not 1 <= self.execute <= horizon:
+            raise ValueError(f"execute must lie in [1, chunk={horizon}], got {self.execute}")
+        if self.ensemble is not None and self.ensemble < 0:
+            raise ValueError(f"the ensembling decay must be >= 0, got {self.ensemble}")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"execute": self.execute, "ensemble": self.ensemble}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "ExecConfig":
+        e = d.get("ensemble")
+        return cls(execute=int(d.get("execute", 1)), ensemble=None if e is None else float(e))
+
+
+class PolicyActor:
+    """Stateful executor of one policy; call :meth:`reset` at every episode start."""
+
+    def __init__(
+        self,
+        policy: Policy,
+        obs_spec: ObsSpec,
+        obs_norm: MinMaxNormalizer,
+        action_norm: MinMaxNormalizer,
+        execution: ExecConfig,
+        adapter: ActionAdapter | None = None,
+        relative: RelativeActions | None = None,
+    ):
+        execution.check(policy.spec.horizon)
+        self.policy = policy.eval()
+        self.obs_spec, self.obs_norm, self.action_norm = obs_spec, obs_norm, action_norm
+        self.execution = execution
+        self.adapter = adapter
+        self.relative = relative
+        self.n_obs, self.horizon = policy.spec.n_obs, policy.spec.horizon
+        self.generator = torch.Generator()
+        self.queries = 0
+        self.reset(0)
+
+    def reset(self, seed: int, env: Any = None) -> None:
+        """Start an episode: clear history and chunks, seed the policy's sampling from ``seed``."""
+        if self.adapter is not None and env is not None:
+            self.adapter.reset(env)
+        self.history: deque[np.ndarray] = deque(maxlen=self.n_obs)
+        self.chunks: deque[tuple[int, np.ndarray]] = deque()  # (first step, [H, A] raw actions)
+        self.t = 0
+        self.last_query = -(10**9)
+        self.generator.manual_seed(int(seed) & 0x7FFF_FFFF_FFFF_FFFF)
+
+    def _query(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        obs = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
+        with torch.inference_mode():
+            chunk = self.policy.predict(torch.from_numpy(obs), generator=self.generator)
+        self.queries += 1
+        actions = self.action_norm.unnormalize(chunk[0].numpy())
+        if self.relative is not None:
+            actions = actions + self.relative.base_frame(frame, actions.shape[1])
+        return actions
+
+    def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's action for this frame (its own representation); advances one step."""
+        obs = self.obs_spec.vector(frame)
+        if not self.history:
+            self.history.extend([obs] * self.n_obs)
+        else:
+            self.history.append(obs)
+        t = self.t
+        if t - self.last_query >= self.execution.execute:
+            self.chunks.append((t, self._query(frame)))
+            self.last_query = t
+        while self.chunks and self.chunks[0][0] + self.horizon <= t:
+            self.chunks.popleft()
+        if self.execution.ensemble is None:
+            start, chunk = self.chunks[-1]
+            action = chunk[t - start]
+        else:
+            # Oldest first: weight exp(-m * i) favours older predictions, as in ACT.
+            acts = np.stack([chunk[t - start] for start, chunk in self.chunks])
+            w = np.exp(-self.execution.ensemble * np.arange(len(acts)))
+            action = (w[:, None] * acts).sum(axis=0) / w.sum()
+        self.t += 1
+        return action.astype(np.float32)
+
+    def act(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """The action to send to the environment (through the adapter)."""
+        action = self.policy_action(frame)
+        return self.adapter(action) if self.adapter is not None else action
+

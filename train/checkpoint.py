@@ -1,0 +1,218 @@
+"""Run directories: everything needed to run, evaluate and resume a trained policy, in safe formats.
+
+::
+
+    RUN/
+      run.json             what was trained and how: algo, policy config and shapes, observation keys,
+                           action representation, execution (chunking), task, robot, data, training
+                           config, the exact command, versions
+      policy.safetensors   weights used for evaluation (the EMA weights when EMA is on) + normalisers
+      train_state.pt       for --resume: raw and EMA weights, optimiser, schedule, step, RNG states;
+                           plain tensors and containers only, read with torch.load(weights_only=True)
+      metrics.json         loss and success curves, final figures
+      curves.png           the same as a plot
+
+No file is ever unpickled: ``policy.safetensors`` is read by safetensors (a pickle is not a valid
+file), ``train_state.pt`` by ``torch.load(weights_only=True)``, whose restricted unpickler refuses
+any global it does not know (a pickle bomb fails before running code). Every file is written to a
+temporary name and renamed, so an interrupted save never leaves a half-written checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from demo.errors import DemoError
+from demo.store import ActionSpec
+from demo.train.actor import ExecConfig, PolicyActor
+from demo.train.normalizer import MinMaxNormalizer
+from demo.train.observation import ObsSpec
+from demo.train.policy import Policy, PolicySpec, build_policy, config_to_json, policy_config
+from demo.train.relative import RelativeActions
+
+RUN_FORMAT = "demo-run"
+RUN_VERSION = 1
+RUN_FILE = "run.json"
+POLICY_FILE = "policy.safetensors"
+STATE_FILE = "train_state.pt"
+METRICS_FILE = "metrics.json"
+CURVES_FILE = "curves.png"
+
+
+@dataclass
+class PolicyBundle:
+    """A policy with everything needed to run it."""
+
+    algo: str
+    policy: Policy
+    obs_spec: ObsSpec
+    obs_norm: MinMaxNormalizer
+    action_norm: MinMaxNormalizer
+    action: ActionSpec
+    execution: ExecConfig
+    run: dict[str, Any]  # the whole run.json (task, robot, data, training config, ...)
+    path: Path | None = None
+    relative: RelativeActions | None = None
+
+    @property
+    def task(self) -> dict[str, Any]:
+        return self.run.get("task") or {}
+
+    @property
+    def robot(self) -> dict[str, Any]:
+        return self.run.get("robot") or {}
+
+    def actor(self, execution: ExecConfig | None = None, adapter: Any = None) -> PolicyActor:
+        return PolicyActor(self.policy, self.obs_spec, self.obs_norm, self.action_norm, execution or self.execution,
+                           adapter, self.relative)
+
+
+def policy_record(
+    algo: str, policy: Policy, obs_spec: ObsSpec, action: ActionSpec, execution: ExecConfig,
+    relative: RelativeActions | None = None,
+) -> dict[str, Any]:
+    """The part of run.json that rebuilds the policy."""
+    return {
+        "algo": algo,
+        "config": config_to_json(policy.config),
+        "spec": policy.spec.to_json(),
+        "obs": obs_spec.to_json(),
+        "action": action.to_json(),
+        "relative_actions": relative.to_json() if relative is not None else None,
+        "execution": execution.to_json(),
+    }
+
+
+def _atomic(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, obj: dict[str, Any]) -> None:
+    from demo.cli.output import dumps
+
+    _atomic(Path(path), lambda tmp: tmp.write_text(dumps(obj) + "\n"))
+
+
+def read_json(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DemoError(path, f"unreadable ({exc})") from None
+
+
+def write_run(run_dir: str | Path, run: dict[str, Any]) -> None:
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(run_dir / RUN_FILE, {"format": RUN_FORMAT, "version": RUN_VERSION, **run})
+
+
+def read_run(run_dir: str | Path) -> dict[str, Any]:
+    run_dir = Path(run_dir)
+    path = run_dir / RUN_FILE
+    if not run_dir.exists():
+        raise DemoError(run_dir, "no such run directory")
+    if not path.is_file():
+        raise DemoError(run_dir, f"not a training run (no {RUN_FILE})")
+    try:
+        run = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DemoError(path, f"unreadable ({exc})") from None
+    if not isinstance(run, dict) or run.get("format") != RUN_FORMAT:
+        raise DemoError(path, f"not a demo run file (format is not {RUN_FORMAT!r})")
+    if run.get("version") != RUN_VERSION:
+        raise DemoError(path, f"run format version {run.get('version')!r} is not supported (this demo reads {RUN_VERSION})")
+    if "policy" not in run:
+        raise DemoError(path, "has no trained policy yet")
+    return run
+
+
+def save_policy(
+    run_dir: str | Path, weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer, action_norm: MinMaxNormalizer
+) -> None:
+    """Write the evaluation weights and the normalisers to ``policy.safetensors``."""
+    tensors = {f"policy.{k}": v.detach().cpu().contiguous().clone() for k, v in weights.items()}
+    tensors.update(obs_norm.state_dict("normalizer.obs"))
+    tensors.update(action_norm.state_dict("normalizer.action"))
+    path = Path(run_dir) / POLICY_FILE
+    _atomic(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+
+
+def load_bundle(run_dir: str | Path) -> PolicyBundle:
+    """Rebuild the policy of a run directory (read-only; never unpickles)."""
+    run_dir = Path(run_dir)
+    run = read_run(run_dir)
+    rec = run["policy"]
+    where = run_dir / RUN_FILE
+    try:
+        spec = PolicySpec(**{k: int(v) for k, v in rec["spec"].items()})
+        obs_spec = ObsSpec.from_json(rec["obs"])
+        action = ActionSpec.from_json(rec["action"])
+        execution = ExecConfig.from_json(rec.get("execution") or {})
+        config = policy_config(rec["algo"], rec.get("config") or {})
+        relative = RelativeActions.from_json(rec.get("relative_actions"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DemoError(where, f"malformed policy record ({exc})") from None
+    path = run_dir / POLICY_FILE
+    if not path.is_file():
+        raise DemoError(run_dir, f"has no {POLICY_FILE} (training did not save a policy yet)")
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise DemoError(path, f"not a valid safetensors file, refusing to load it ({str(exc).splitlines()[0][:120]})") from None
+    policy = build_policy(rec["algo"], spec, config)
+    weights = {k[len("policy."):]: v for k, v in tensors.items() if k.startswith("policy.")}
+    try:
+        policy.load_state_dict(weights, strict=True)
+        obs_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.obs")
+        action_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.action")
+    except (RuntimeError, KeyError) as exc:
+        raise DemoError(path, f"does not match the policy in {RUN_FILE} ({str(exc).splitlines()[0][:160]})") from None
+    if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
+        raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
+    policy.eval()
+    return PolicyBundle(rec["algo"], policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
+
+
+def save_train_state(run_dir: str | Path, state: dict[str, Any]) -> None:
+    """Write the resume state (tensors, numbers, strings, lists and dicts only)."""
+    path = Path(run_dir) / STATE_FILE
+    _atomic(path, lambda tmp: torch.save(state, tmp))
+
+
+def load_train_state(run_dir: str | Path) -> dict[str, Any]:
+    """Read the resume state with ``torch.load(weights_only=True)``; refuse anything else."""
+    path = Path(run_dir) / STATE_FILE
+    if not path.is_file():
+        raise DemoError(run_dir, f"has no {STATE_FILE} to resume from")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # torch's note on the pickle protocol of foreign files
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise DemoError(
+            path, "refusing to load: it holds Python objects other than tensors and plain containers (a pickle can run code)"
+        ) from None
+    except (RuntimeError, EOFError, OSError, ValueError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+        raise DemoError(path, f"refusing to load: not a plain-tensor checkpoint ({first})") from None
+    if not isinstance(state, dict) or "step" not in state:
+        raise DemoError(path, "not a demo training state")
+    return state
+
+
+def now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())

@@ -1,0 +1,217 @@
+"""The compounding-errors experiment: success against horizon for BC, DAgger and BC with chunking.
+
+On ``stack`` with ``blocks`` = N (horizon ``60 + 100 N`` control steps), for each N:
+
+1. collect a pool of scripted demonstrations (``demo collect``'s library, seed ``seed``);
+2. **DAgger**: round 0 on the first ``demos`` of them, then ``rounds`` x ``episodes_per_round``
+   learner rollouts labelled by the expert (:mod:`demo.train.dagger`; by default the HG-DAgger
+   variant, ``gate = "deviation:0.05"``: the expert takes over and labels only where the learner
+   strays; plain DAgger with ``gate=None``); its expert-label count ``L`` (demonstration frames +
+   labelled rollout frames) is the budget;
+3. **BC**: the same network and optimiser on the first ``k`` pooled demonstrations, ``k`` the
+   smallest number whose frames reach ``L`` (equal expert-label budget);
+4. **BC + chunking**: the same ``k`` demonstrations, action chunks of ``chunk`` with temporal
+   ensembling (ACT);
+5. every policy evaluated with :func:`demo.train.evaluate.evaluate` (``demo eval``) on
+   ``eval_episodes`` episodes, seeds disjoint from all training data.
+
+Run with ``demo bench compounding`` or ``python -m demo.train.compounding``; it writes one JSON
+(every number and the exact configuration) and a PNG (success with 95% intervals against horizon).
+Each method's run directory is kept under ``out`` for ``demo eval`` and inspection.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from demo.store import EpisodeStore
+from demo.train import checkpoint as ckpt
+from demo.train.bc import TrainConfig, train
+from demo.train.dagger import DaggerConfig, train_dagger
+from demo.train.evaluate import EvalConfig, evaluate
+from demo.train.plots import plot_success_vs
+
+
+@dataclass
+class CompoundingConfig:
+    out: str = "compounding"
+    task: str = "stack"
+    blocks: tuple[int, ...] = (1, 2, 3)
+    seed: int = 0
+    demos: int = 50  # DAgger's initial demonstrations
+    pool: int = 150  # demonstrations collected per N at first (extended when BC's budget needs more)
+    rounds: int = 6
+    episodes_per_round: int = 20
+    beta: str = "indicator"
+    gate: str | None = "deviation:0.05"  # HG-DAgger; None = plain DAgger with the beta schedule
+    steps: int = 4000  # optimiser steps of BC (and of DAgger's round 0)
+    round_steps: int = 4000
+    hidden: tuple[int, ...] = (256, 256)
+    batch_size: int = 256
+    chunk: int = 16  # the chunked BC line
+    eval_episodes: int = 100
+    workers: int = 1  # collection and evaluation processes
+    methods: tuple[str, ...] = ("bc", "dagger", "bc_chunk")
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _train_config(c: CompoundingConfig, data: Path, out: Path, **kw: Any) -> TrainConfig:
+    return TrainConfig(data=str(data), out=str(out), seed=c.seed, steps=c.steps, batch_size=c.batch_size,
+                       policy={"hidden": c.hidden}, **kw)
+
+
+def _subset(pool: EpisodeStore, path: Path, n: int) -> Path:
+    if not path.exists():
+        pool.copy_to(path, episodes=np.arange(n), provenance={"op": "subset", "first_episodes": n}).close()
+    return path
+
+
+def _episodes_for_budget(pool: EpisodeStore, labels: int) -> int:
+    """The fewest leading pool episodes whose frames reach ``labels``."""
+    cumulative = np.cumsum(pool.episode_lengths)
+    k = int(np.searchsorted(cumulative, labels) + 1)
+    if k > pool.num_episodes:
+        raise ValueError(f"the pool of {pool.num_episodes} demos holds {cumulative[-1]} frames < budget {labels}; raise --pool")
+    return k
+
+
+def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
+    from demo.collect.scripted import CollectConfig, collect_scripted
+
+    out = Path(c.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    started = time.perf_counter()
+    for n in c.blocks:
+        d = out / f"{c.task}{n}"
+        d.mkdir(exist_ok=True)
+        pool_path = d / "pool.zarr"
+        if not pool_path.exists():
+            log(f"[blocks {n}] collecting {c.pool} demonstrations")
+            collect_scripted(CollectConfig(task=c.task, episodes=c.pool, seed=c.seed, task_options={"blocks": n}),
+                             pool_path, workers=c.workers if c.workers > 1 else 0)
+        pool = EpisodeStore.open(pool_path)
+        horizon = int((pool.meta.task or {}).get("horizon", 0))
+        entry: dict[str, Any] = {"blocks": n, "horizon": horizon, "expert_success": float(pool.column("success").mean())}
+
+        # ---- DAgger sets the label budget
+        dagger_run = d / "dagger"
+        if not (dagger_run / ckpt.RUN_FILE).exists() or "final" not in _metrics(dagger_run):
+            log(f"[blocks {n}] DAgger: {c.demos} demos + {c.rounds} x {c.episodes_per_round} rollouts")
+            demos = _subset(pool, d / f"demos{c.demos}.zarr", c.demos)
+            tc = _train_config(c, demos, dagger_run)
+            train_dagger(DaggerConfig(train=tc, rounds=c.rounds, episodes_per_round=c.episodes_per_round,
+                                      round_steps=c.round_steps, beta=c.beta, gate=c.gate), progress=False, overwrite=True)
+        budget = int(_metrics(dagger_run)["final"]["expert_labels"])
+        while int(pool.episode_lengths.sum()) < budget:
+            pool.close()
+            more = max(50, c.pool // 2)
+            log(f"[blocks {n}] collecting {more} more demonstrations for BC's budget of {budget} labels")
+            collect_scripted(CollectConfig(task=c.task, episodes=more, seed=c.seed, task_options={"blocks": n}),
+                             pool_path, workers=c.workers if c.workers > 1 else 0, append=True)
+            pool = EpisodeStore.open(pool_path)
+        k = _episodes_for_budget(pool, budget)
+        entry["expert_labels"] = budget
+        entry["bc_demos"] = k
+        bc_data = _subset(pool, d / f"demos{k}.zarr", k)
+        runs = {"dagger": dagger_run}
+        if "bc" in c.methods:
+            runs["bc"] = d / "bc"
+            if not (runs["bc"] / ckpt.POLICY_FILE).exists():
+                log(f"[blocks {n}] BC on {k} demos ({budget} labels)")
+                train(_train_config(c, bc_data, runs["bc"]), progress=False, overwrite=True)
+        if "bc_chunk" in c.methods:
+            runs["bc_chunk"] = d / f"bc_chunk{c.chunk}"
+            if not (runs["bc_chunk"] / ckpt.POLICY_FILE).exists():
+                log(f"[blocks {n}] BC + chunking ({c.chunk}) on {k} demos")
+                train(_train_config(c, bc_data, runs["bc_chunk"], chunk=c.chunk, ensemble=0.01), progress=False,
+                      overwrite=True)
+        pool.close()
+        for method, run_dir in runs.items():
+            if method not in c.methods:
+                continue
+            result_path = run_dir / "eval.json"
+            if result_path.exists():
+                result = ckpt.read_json(result_path)
+            else:
+                log(f"[blocks {n}] evaluating {method} on {c.eval_episodes} episodes")
+                result = evaluate(EvalConfig(run=str(run_dir), episodes=c.eval_episodes, seed=c.seed, workers=c.workers))
+                result.pop("episodes_detail", None)
+                ckpt.write_json(result_path, result)
+            labels = int(ckpt.read_run(run_dir)["data"]["expert_labels"])
+            entry[method] = {k2: result[k2] for k2 in ("success_rate", "ci95", "successes", "episodes", "mean_length", "failures")}
+            entry[method]["expert_labels"] = labels
+            entry[method]["run"] = str(run_dir)
+            log(f"[blocks {n}] {method}: {result['success_rate']:.0%} ({labels} labels)")
+        rows.append(entry)
+    dagger_name = f"HG-DAgger ({c.gate})" if c.gate else f"DAgger (beta {c.beta})"
+    lines = {name: [{"horizon": r["horizon"], "blocks": f"N={r['blocks']}", **r[m]} for r in rows if m in r]
+             for m, name in (("bc", "BC"), ("dagger", dagger_name), ("bc_chunk", f"BC + chunking ({c.chunk})"))}
+    png = plot_success_vs(lines, out / "compounding.png", title=f"{c.task}: success vs horizon at equal expert labels",
+                          annotate="blocks")
+    return {
+        "experiment": "compounding",
+        "config": {**asdict(c), "blocks": list(c.blocks), "hidden": list(c.hidden), "methods": list(c.methods)},
+        "rows": rows,
+        "png": str(png),
+        "seconds": time.perf_counter() - started,
+        "target": "DAgger >= 90% where BC is at least 25 points lower",
+        "meets_target": any(
+            r.get("dagger", {}).get("success_rate", 0) >= 0.9
+            and r["dagger"]["success_rate"] - r.get("bc", {}).get("success_rate", 1) >= 0.25
+            for r in rows
+        ),
+    }
+
+
+def _metrics(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / ckpt.METRICS_FILE
+    return ckpt.read_json(path) if path.exists() else {}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m demo.train.compounding", description=__doc__.split("\n")[0])
+    defaults = CompoundingConfig()
+    p.add_argument("--out", default=defaults.out)
+    p.add_argument("--json", default=None, help="Result JSON (default OUT/compounding.json).")
+    p.add_argument("--blocks", default="1,2,3")
+    for name in ("seed", "demos", "pool", "rounds", "episodes_per_round", "steps", "round_steps", "batch_size", "chunk",
+                 "eval_episodes", "workers"):
+        p.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
+    p.add_argument("--beta", default=defaults.beta)
+    p.add_argument("--gate", default=defaults.gate, help="HG-DAgger gate, or 'none' for plain DAgger")
+    p.add_argument("--hidden", default=",".join(map(str, defaults.hidden)))
+    p.add_argument("--methods", default=",".join(defaults.methods))
+    a = p.parse_args(argv)
+    config = CompoundingConfig(
+        out=a.out, blocks=tuple(int(b) for b in a.blocks.split(",")), seed=a.seed, demos=a.demos, pool=a.pool,
+        rounds=a.rounds, episodes_per_round=a.episodes_per_round, beta=a.beta,
+        gate=None if a.gate in (None, "none") else a.gate, steps=a.steps,
+        round_steps=a.round_steps, hidden=tuple(int(h) for h in a.hidden.split(",")), batch_size=a.batch_size,
+        chunk=a.chunk, eval_episodes=a.eval_episodes, workers=a.workers, methods=tuple(a.methods.split(",")),
+    )
+    result = run(config)
+    ckpt.write_json(Path(a.json or Path(a.out) / "compounding.json"), result)
+    print(format_table(result))
+    return 0
+
+
+def format_table(result: dict[str, Any]) -> str:
+    lines = ["blocks  horizon  labels   BC              DAgger          BC+chunk"]
+    for r in result["rows"]:
+        cells = []
+        for m in ("bc", "dagger", "bc_chunk"):
+            e = r.get(m)
+            cells.append(f"{e['success_rate']:.0%} [{e['ci95'][0]:.0%},{e['ci95'][1]:.0%}]" if e else "-")
+        lines.append(f"{r['blocks']:<7} {r['horizon']:<8} {r['expert_labels']:<8} " + "  ".join(f"{c:<15}" for c in cells))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,339 @@
+"""Policy evaluation by rollouts in the simulator: success rate with a Wilson interval, lengths, failures.
+
+Episode ``i`` of ``demo eval --seed S`` starts from ``env.reset(eval_seeds(S)[i])``
+(:mod:`demo.train.seeds`: a seed stream disjoint from the one demonstrations are collected with);
+the seeds used are checked against the seeds of the run's training data and the overlap reported.
+Each episode runs :func:`demo.collect.rollout.rollout` (the loop collection uses): it ends at the task
+horizon, or once success has held for 0.5 s. Outcomes:
+
+- ``success``: the success predicate holds at the end;
+- ``timeout``: it never held before the horizon;
+- ``lost``: it held at some point but not at the end (e.g. a lifted cube dropped);
+- ``error``: the policy produced a non-finite action or the simulation failed.
+
+Evaluation is deterministic for a seed, whatever ``--workers``: every episode's state depends only
+on its seed, and torch runs single-threaded here (a small network at batch 1 gains nothing from
+threads, and thread counts could change float summation order).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.collect.rollout import StepCommand, rollout
+from demo.errors import DemoError
+from demo.train.actions import make_action_adapter
+from demo.train.actor import ExecConfig, PolicyActor
+from demo.train.checkpoint import PolicyBundle, load_bundle
+from demo.train.seeds import EVAL_OFFSET, eval_seeds
+
+Z95 = 1.959963984540054
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """95% Wilson score interval of a binomial proportion (sensible at 0% and 100%, unlike Wald)."""
+    if n <= 0:
+        return (0.0, 1.0)
+    if successes == 0:
+        return (0.0, min(1.0, z * z / (n + z * z)))
+    if successes == n:
+        return (max(0.0, n / (n + z * z)), 1.0)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+@dataclass
+class EpisodeOutcome:
+    index: int
+    seed: int
+    success: bool
+    length: int  # control steps
+    first_success_step: int | None
+    outcome: str  # success | timeout | lost | error
+    error: str = ""
+    states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
+
+    def to_json(self) -> dict[str, Any]:
+        d = {
+            "index": self.index,
+            "seed": self.seed,
+            "success": self.success,
+            "length": self.length,
+            "first_success_step": self.first_success_step,
+            "outcome": self.outcome,
+        }
+        if self.error:
+            d["error"] = self.error
+        return d
+
+
+# ---------------------------------------------------------------------------------- environment
+def resolve_target(
+    bundle: PolicyBundle, task: str | None, task_options: dict[str, Any] | None, robot: str | None
+) -> tuple[str, dict[str, Any], str | None]:
+    """The task, task options and robot config to evaluate on; refuses ones the policy was not trained for."""
+    where = str(bundle.path or "run")
+    trained_task = bundle.task.get("name")
+    trained_options = dict(bundle.task.get("options") or {})
+    task = task or trained_task
+    if not task:
+        raise DemoError(where, "records no task; pass --task")
+    if trained_task and task != trained_task:
+        raise DemoError(where, f"was trained on task {trained_task!r}; it cannot be evaluated on {task!r}")
+    options = trained_options if task_options is None else {**trained_options, **task_options}
+    if trained_task and options != trained_options:
+        raise DemoError(
+            where, f"was trained on {task} with options {trained_options}; it cannot be evaluated with {options}"
+        )
+    trained_config = bundle.robot.get("config")
+    if robot is None:
+        robot = None if trained_config in (None, "builtin") else str(trained_config)
+    return task, options, robot
+
+
+def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: str | None, cameras: Sequence[Any] = ()) -> Any:
+    from demo.sim import make_env
+
+    where = str(bundle.path or "run")
+    env = make_env(task, robot=robot, cameras=cameras, **options)
+    trained_robot = bundle.robot.get("name")
+    if trained_robot and env.robot.name != trained_robot:
+        env.close()
+        raise DemoError(where, f"was trained on robot {trained_robot!r}; it cannot be evaluated on {env.robot.name!r}")
+    try:
+        bundle.obs_spec.check_against(env.features, f"{task} environment (robot {env.robot.name})")
+    except DemoError:
+        env.close()
+        raise
+    return env
+
+
+def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = None) -> PolicyActor:
+    adapter = make_action_adapter(bundle.action, env, str(bundle.path or "run"))
+    return bundle.actor(execution, adapter)
+
+
+# ---------------------------------------------------------------------------------- one episode
+def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool = False, max_steps: int | None = None) -> EpisodeOutcome:
+    """Reset to ``seed`` and let the policy act until success has held or the horizon."""
+    env.reset(seed)
+    actor.reset(seed, env)
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        action = actor.act(frame)
+        if not np.isfinite(action).all():
+            raise FloatingPointError(f"non-finite action at step {t}")
+        return StepCommand(executed=action, label=action)
+
+    try:
+        episode = rollout(env, seed, act, reset=False, record=record, max_steps=max_steps)
+    except FloatingPointError as exc:
+        return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
+    if _diverged(env):
+        return EpisodeOutcome(index, seed, False, episode.length, None, "error", "simulation became unstable")
+    if episode.success:
+        outcome = "success"
+    elif episode.first_success_step is not None:
+        outcome = "lost"
+    else:
+        outcome = "timeout"
+    states = episode.data.get("sim.state") if record else None
+    return EpisodeOutcome(index, seed, episode.success, episode.length, episode.first_success_step, outcome, "", states)
+
+
+def _diverged(env: Any) -> bool:
+    """MuJoCo resets the state itself on a bad acceleration and only counts a warning."""
+    import mujoco
+
+    data = getattr(env, "data", None)
+    if data is None:
+        return False
+    return int(data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number) > 0 or not np.isfinite(data.qpos).all()
+
+
+def run_episodes_inline(
+    bundle: PolicyBundle,
+    env: Any,
+    seeds: Sequence[int],
+    execution: ExecConfig | None = None,
+    record: Sequence[int] = (),
+    on_episode: Callable[[EpisodeOutcome], None] | None = None,
+) -> list[EpisodeOutcome]:
+    """Evaluate an in-memory policy in this process (training-time evaluation, tests)."""
+    actor = make_actor(bundle, env, execution)
+    outcomes = []
+    with single_thread():
+        for i, seed in enumerate(seeds):
+            out = run_episode(env, actor, i, int(seed), record=i in record)
+            outcomes.append(out)
+            if on_episode:
+                on_episode(out)
+    return outcomes
+
+
+class single_thread:
+    """Context manager: torch on one thread (deterministic and fastest for batch-1 inference)."""
+
+    def __enter__(self) -> None:
+        self.threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+
+    def __exit__(self, *exc: object) -> None:
+        torch.set_num_threads(self.threads)
+
+
+# ---------------------------------------------------------------------------------- worker processes
+_worker: dict[str, Any] = {}
+
+
+def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any]) -> None:
+    torch.set_num_threads(1)
+    bundle = load_bundle(run)
+    env = make_eval_env(bundle, task, options, robot)
+    _worker["env"] = env
+    _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
+
+
+def _worker_run(job: tuple[int, int, bool]) -> EpisodeOutcome:
+    index, seed, record = job
+    return run_episode(_worker["env"], _worker["actor"], index, seed, record=record)
+
+
+def _run_parallel(
+    run: Path, task: str, options: dict[str, Any], robot: str | None, execution: ExecConfig,
+    jobs: list[tuple[int, int, bool]], workers: int,
+) -> Iterator[EpisodeOutcome]:
+    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state
+    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(str(run), task, options, robot, execution.to_json()))
+    try:
+        yield from pool.imap(_worker_run, jobs, chunksize=1)
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+# ---------------------------------------------------------------------------------- the command
+@dataclass
+class EvalConfig:
+    run: str
+    task: str | None = None  # default: the task the policy was trained on
+    task_options: dict[str, Any] | None = None  # default: the trained task's options
+    robot: str | None = None  # robot config TOML; default: the trained robot
+    episodes: int = 100
+    seed: int = 0
+    workers: int = 1
+    execute: int | None = None  # override the run's chunk execution
+    ensemble: float | None = None  # override the ensembling decay (< 0 turns it off)
+    video: str | None = None  # .gif (or .mp4 where an encoder is installed)
+    video_episodes: int = 4
+    video_size: int = 128
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None) -> ExecConfig:
+    execution = ExecConfig(bundle.execution.execute, bundle.execution.ensemble)
+    if execute is not None:
+        execution.execute = execute
+    if ensemble is not None:
+        execution.ensemble = None if ensemble < 0 else ensemble
+    try:
+        execution.check(bundle.policy.spec.horizon)
+    except ValueError as exc:
+        raise DemoError("--execute", str(exc)) from None
+    return execution
+
+
+def evaluate(config: EvalConfig, on_episode: Callable[[EpisodeOutcome], None] | None = None) -> dict[str, Any]:
+    """Evaluate the run at ``config.run``; returns the JSON-able result (see :func:`summarize`)."""
+    if config.episodes < 1:
+        raise DemoError("--episodes", "must be at least 1")
+    if config.workers < 1:
+        raise DemoError("--workers", "must be at least 1")
+    run = Path(config.run)
+    bundle = load_bundle(run)
+    task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
+    execution = execution_for(bundle, config.execute, config.ensemble)
+    seeds = eval_seeds(config.seed, config.episodes)
+    n_video = min(config.video_episodes, config.episodes) if config.video else 0
+    jobs = [(i, s, i < n_video) for i, s in enumerate(seeds)]
+    start = time.perf_counter()
+    outcomes: list[EpisodeOutcome] = []
+    env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
+    try:
+        if config.workers == 1:
+            actor = make_actor(bundle, env, execution)
+            with single_thread():
+                for index, seed, record in jobs:
+                    outcomes.append(run_episode(env, actor, index, seed, record=record))
+                    if on_episode:
+                        on_episode(outcomes[-1])
+        else:
+            for out in _run_parallel(run, task, options, robot, execution, jobs, config.workers):
+                outcomes.append(out)
+                if on_episode:
+                    on_episode(out)
+    finally:
+        env.close()
+    seconds = time.perf_counter() - start
+    result = summarize(outcomes)
+    training_seeds = set(int(s) for s in (bundle.run.get("data") or {}).get("seeds", []))
+    result.update(
+        {
+            "run": str(run),
+            "algo": bundle.algo,
+            "task": task,
+            "task_options": options,
+            "robot": bundle.robot.get("name"),
+            "seed": config.seed,
+            "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.train.seeds)",
+            "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
+            "execution": execution.to_json(),
+            "workers": config.workers,
+            "seconds": seconds,
+            "steps_per_s": sum(o.length for o in outcomes) / max(seconds, 1e-9),
+            **config.extra,
+        }
+    )
+    if config.video:
+        from demo.train.video import write_video
+
+        recorded = [o for o in outcomes if o.states is not None]
+        result["video"] = write_video(
+            config.video, recorded, task, options, robot, fps=bundle.run.get("fps") or 20.0, size=config.video_size
+        )
+    result["episodes_detail"] = [o.to_json() for o in outcomes]
+    return result
+
+
+def summarize(outcomes: Sequence[EpisodeOutcome]) -> dict[str, Any]:
+    n = len(outcomes)
+    k = sum(o.success for o in outcomes)
+    lo, hi = wilson_interval(k, n)
+    lengths = np.array([o.length for o in outcomes], dtype=float)
+    ok_lengths = np.array([o.length for o in outcomes if o.success], dtype=float)
+    failures: dict[str, int] = {}
+    for o in outcomes:
+        if not o.success:
+            failures[o.outcome] = failures.get(o.outcome, 0) + 1
+    return {
+        "episodes": n,
+        "successes": k,
+        "success_rate": k / n if n else 0.0,
+        "ci95": [lo, hi],
+        "mean_length": float(lengths.mean()) if n else None,
+        "mean_length_success": float(ok_lengths.mean()) if len(ok_lengths) else None,
+        "failures": failures,
+    }

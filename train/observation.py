@@ -1,0 +1,204 @@
+"""The policy's observation: a fixed concatenation of low-dimensional ``obs.*`` keys.
+
+The order of ``keys`` is the order of the concatenation, recorded in the run so that evaluation
+builds exactly the vector the policy was trained on. A key of any float shape is flattened in C
+order (``obs.object_pos`` ``[K, 3]`` becomes ``3K`` values). Images (``obs.image_*``, uint8
+``[H, W, 3]``) are not low-dimensional and are never picked.
+
+Quaternions (keys ending in ``_quat`` whose last axis is 4, wxyz) enter as the first two columns
+of their rotation matrix ("6D", Zhou et al. 2019), ``[K, 4]`` -> ``6K`` values. A quaternion and
+its negative are the same rotation, and the stores keep ``w >= 0``; a gripper pointing down has
+``w`` near 0, so its stored quaternion flips sign between nearby orientations: a network would see
+a jump where nothing moved. The 6D form is continuous and sign-free.
+
+A key may also be a difference ``"obs.a-obs.b"`` of two position keys whose last axes match
+(``obs.object_pos`` ``[K, 3]`` minus ``obs.ee_pos`` ``[3]`` gives every object relative to the
+gripper). By default every ``*_pos`` key with 3-vectors gets its offset from ``obs.ee_pos`` added:
+a grasp decision hinges on centimetres of that offset, which an MLP would otherwise have to compute
+as the difference of two inputs each normalised over half a metre.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from demo.errors import DemoError
+from demo.store import FeatureSpec
+
+MAX_LOW_DIM = 4096  # values per frame; anything larger is not a state vector
+QUAT_TO_ROT6D = "quat_to_rot6d"
+DIFFERENCE = "difference"
+
+
+def is_low_dim(key: str, spec: FeatureSpec) -> bool:
+    size = int(np.prod(spec.shape, dtype=np.int64)) if spec.shape else 1
+    return (
+        key.startswith("obs.")
+        and not key.startswith("obs.image_")
+        and np.dtype(spec.dtype).kind == "f"
+        and size <= MAX_LOW_DIM
+    )
+
+
+def low_dim_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
+    """Every low-dimensional float ``obs.*`` key (no images), in store order."""
+    return [k for k, spec in features.items() if is_low_dim(k, spec)]
+
+
+REFERENCE_KEY = "obs.ee_pos"
+
+
+def default_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
+    """The low-dim keys without velocities (``*_vel``), plus positions relative to the end-effector.
+
+    Velocities let a cloned policy read the expert's last action off the state (the arm moves the
+    way it was just told to): the "copycat" shortcut of causal confusion (de Haan et al. 2019,
+    Wen et al. 2020). It fits the demonstrations and fails in closed loop: on ``pick`` (100 demos,
+    MLP) adding ``obs.joint_vel`` took rollout success from 43% to 17%. ``--obs-keys all`` keeps them.
+    """
+    keys = [k for k in low_dim_keys(features) if not k.endswith("_vel")] or low_dim_keys(features)
+    ref = features.get(REFERENCE_KEY)
+    if ref is not None and ref.shape == (3,):
+        keys += [f"{k}-{REFERENCE_KEY}" for k in list(keys)
+                 if k != REFERENCE_KEY and k.endswith("_pos") and features[k].shape[-1:] == (3,)]
+    return keys
+
+
+def _difference(key: str) -> tuple[str, str] | None:
+    a, sep, b = key.partition("-")
+    return (a, b) if sep else None
+
+
+def is_quaternion(key: str, spec: FeatureSpec) -> bool:
+    return key.endswith("_quat") and len(spec.shape) >= 1 and spec.shape[-1] == 4
+
+
+def quat_to_rot6d(q: np.ndarray) -> np.ndarray:
+    """``[..., 4]`` wxyz (any norm, any sign) -> ``[..., 6]``: rotation matrix columns 0 and 1."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-12)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    col0 = [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)]
+    col1 = [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)]
+    return np.stack(col0 + col1, axis=-1).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class ObsSpec:
+    keys: tuple[str, ...]
+    dims: tuple[int, ...]  # values each key contributes (after its transform)
+    transforms: tuple[str, ...] = ()  # per key: "" or QUAT_TO_ROT6D
+
+    def __post_init__(self) -> None:
+        if not self.transforms:
+            object.__setattr__(self, "transforms", ("",) * len(self.keys))
+
+    @property
+    def dim(self) -> int:
+        return int(sum(self.dims))
+
+    @property
+    def source_keys(self) -> list[str]:
+        """The store/env keys the vector is built from."""
+        out: list[str] = []
+        for key, t in zip(self.keys, self.transforms):
+            for k in (_difference(key) or (key,)) if t == DIFFERENCE else (key,):
+                if k not in out:
+                    out.append(k)
+        return out
+
+    @classmethod
+    def from_features(
+        cls, features: Mapping[str, FeatureSpec], keys: Sequence[str] | None = None, where: str = "store"
+    ) -> "ObsSpec":
+        if not keys:
+            chosen = default_keys(features)
+        elif list(keys) == ["all"]:
+            chosen = low_dim_keys(features)
+        else:
+            chosen = list(keys)
+        if not chosen:
+            raise DemoError(where, "has no low-dimensional obs.* features to train on")
+        dims, transforms = [], []
+        for key in chosen:
+            pair = _difference(key)
+            if pair is not None:
+                a, b = pair
+                for k in pair:
+                    if k not in features or not is_low_dim(k, features[k]):
+                        raise DemoError(where, f"{key}: {k!r} is not a low-dimensional observation of this store")
+                if features[a].shape[-1:] != features[b].shape[-1:] or len(features[b].shape) != 1:
+                    raise DemoError(where, f"{key}: shapes {features[a].shape} and {features[b].shape} do not subtract")
+                dims.append(int(np.prod(features[a].shape, dtype=np.int64)))
+                transforms.append(DIFFERENCE)
+                continue
+            if key not in features:
+                known = ", ".join(low_dim_keys(features)) or "none"
+                raise DemoError(where, f"has no observation {key!r} (low-dim obs keys: {known})")
+            spec = features[key]
+            if not is_low_dim(key, spec):
+                raise DemoError(where, f"{key} ({spec.dtype} {spec.shape}) is not a low-dimensional float observation")
+            size = int(np.prod(spec.shape, dtype=np.int64)) if spec.shape else 1
+            if is_quaternion(key, spec):
+                dims.append(size // 4 * 6)
+                transforms.append(QUAT_TO_ROT6D)
+            else:
+                dims.append(size)
+                transforms.append("")
+        return cls(tuple(chosen), tuple(dims), tuple(transforms))
+
+    def _part(self, data: Mapping[str, np.ndarray], key: str, d: int, transform: str, n: int | None) -> np.ndarray:
+        if transform == DIFFERENCE:
+            a, b = _difference(key)  # type: ignore[misc]
+            av, bv = np.asarray(data[a], dtype=np.float32), np.asarray(data[b], dtype=np.float32)
+            if n is None:
+                arr = av.reshape(-1, bv.shape[-1]) - bv.reshape(1, -1)
+            else:
+                arr = av.reshape(n, -1, bv.shape[-1]) - bv.reshape(n, 1, -1)
+            return arr.reshape(d) if n is None else arr.reshape(n, d)
+        arr = np.asarray(data[key], dtype=np.float32)
+        if transform == QUAT_TO_ROT6D:
+            arr = quat_to_rot6d(arr.reshape(-1, 4) if n is None else arr.reshape(n, -1, 4))
+        return arr.reshape(d) if n is None else arr.reshape(n, d)
+
+    def concat(self, data: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Frames ``{key: [N, ...]}`` -> ``[N, dim]`` float32."""
+        n = len(data[self.keys[0]])
+        return np.concatenate([self._part(data, k, d, t, n) for k, d, t in zip(self.keys, self.dims, self.transforms)], axis=1)
+
+    def vector(self, frame: Mapping[str, np.ndarray]) -> np.ndarray:
+        """One frame ``{key: [...]}`` -> ``[dim]`` float32."""
+        return np.concatenate([self._part(frame, k, d, t, None) for k, d, t in zip(self.keys, self.dims, self.transforms)])
+
+    def check_against(self, features: Mapping[str, FeatureSpec], where: str) -> None:
+        """Refuse an environment/store whose observations differ from the ones trained on."""
+        for key, d, t in zip(self.keys, self.dims, self.transforms):
+            if t == DIFFERENCE:
+                pair = _difference(key) or ()
+                missing = [k for k in pair if k not in features]
+                if missing:
+                    raise DemoError(where, f"has no observation {missing[0]!r}, which the policy was trained on")
+                key = pair[0]
+            if key not in features:
+                raise DemoError(where, f"has no observation {key!r}, which the policy was trained on")
+            shape = features[key].shape
+            have = int(np.prod(shape, dtype=np.int64)) if shape else 1
+            if t == QUAT_TO_ROT6D:
+                have = have // 4 * 6
+            if have != d:
+                raise DemoError(where, f"observation {key} has a different size ({shape}) from the one the policy was trained on")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"keys": list(self.keys), "dims": list(self.dims), "transforms": list(self.transforms)}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> "ObsSpec":
+        transforms = tuple(d.get("transforms") or ())
+        for t in transforms:
+            if t not in ("", QUAT_TO_ROT6D, DIFFERENCE):
+                raise ValueError(f"unknown observation transform {t!r}")
+        return cls(tuple(d["keys"]), tuple(int(x) for x in d["dims"]), transforms)
