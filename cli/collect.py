@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from demo.cli.main import app
-from demo.cli.output import console, table, write_json
+from demo.cli.output import console, err_console, table, write_json
 from demo.errors import DemoError
 
 SOURCES = ("scripted", "kinesthetic", "vr")
@@ -71,7 +71,7 @@ def collect(
         TextColumn("{task.fields[fps]} frames/s"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=console,
+        console=err_console if json_out == "-" else console,  # stdout carries only the JSON then
         transient=False,
     )
     with progress:
@@ -128,5 +128,6 @@ def collect(
         rows.append(("unreachable frames (flagged)", unreachable))
     if result.modes:
         rows.append(("modes", ", ".join(f"{k}: {v}" for k, v in sorted(result.modes.items()))))
-    console.print(table("collected", ["", ""], rows))
+    if json_out != "-":
+        console.print(table("collected", ["", ""], rows))
     write_json(summary, json_out)
