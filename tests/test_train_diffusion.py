@@ -57,7 +57,7 @@ def fit(policy: torch.nn.Module, steps: int, lr: float = 3e-3, seed: int = 0) ->
     return policy.eval()
 
 
-TINY = {"unet": {"channels": (16, 32), "step_embed_dim": 16}, "mlp": {"denoiser": "mlp", "width": 64, "depth": 2, "step_embed_dim": 16}}
+TINY = {"unet": {"denoiser": "unet", "channels": (16, 32), "step_embed_dim": 16}, "mlp": {"denoiser": "mlp", "width": 64, "depth": 2, "step_embed_dim": 16}}
 
 
 def tiny_diffusion(denoiser: str = "unet", **options) -> DiffusionPolicy:
@@ -172,9 +172,10 @@ def test_cached_conditioning_is_exact(denoiser: str) -> None:
 def test_config_checks_and_defaults() -> None:
     assert TRAIN_DEFAULTS["chunk"] == 16 and TRAIN_DEFAULTS["n_obs"] == 2 and TRAIN_DEFAULTS["execute"] == 8
     assert DiffusionConfig().train_steps == 100 and DiffusionConfig(large=True).net_channels == (256, 512, 1024)
+    assert TRAIN_DEFAULTS["ensemble"] is None  # averaging chunks across modes is what diffusion avoids
     for bad in ({"prediction": "v"}, {"sampler": "euler"}, {"inference_steps": 0}, {"inference_steps": 101},
                 {"channels": (30,)}, {"spacing": "cubic"}, {"denoiser": "transformer"}):
         with pytest.raises(DemoError):
             build_policy("diffusion", PolicySpec(2, 2, 1, H), bad)
     with pytest.raises(DemoError, match="multiple of 4"):
-        build_policy("diffusion", PolicySpec(2, 2, 1, 10), {"channels": (16, 32, 64)})
+        build_policy("diffusion", PolicySpec(2, 2, 1, 10), {"denoiser": "unet", "channels": (16, 32, 64)})

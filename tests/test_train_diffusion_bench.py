@@ -21,7 +21,7 @@ def one_thread():
 
 
 def test_bench_infer_measures_figure_and_reference_in_one_run() -> None:
-    r = bench_infer(channels=(16, 32), steps=4, obs_dim=6, action_dim=3, horizon=8, seconds=0.05)
+    r = bench_infer(denoiser="unet", channels=(16, 32), steps=4, obs_dim=6, action_dim=3, horizon=8, seconds=0.05)
     assert r["inference_steps"] == 4 and r["channels"] == [16, 32] and r["batch"] == 1
     for key in ("ms_per_chunk", "reference_ms_per_chunk", "ddim_eager_ms_per_chunk", "ddpm_fast_path_ms_per_chunk"):
         assert r[key] > 0
@@ -35,11 +35,12 @@ def test_bench_infer_cli_writes_json(tmp_path) -> None:
     from demo.cli.main import main
 
     out = tmp_path / "infer.json"
-    rc = main(["bench", "infer", "--channels", "16,32", "--inference-steps", "2", "--seconds", "0.02", "--json", str(out)])
+    rc = main(["bench", "infer", "--denoiser", "mlp", "--inference-steps", "2", "--seconds", "0.02", "--json", str(out)])
     assert rc == 0
     r = json.loads(out.read_text())
-    assert r["inference_steps"] == 2 and r["reference_ms_per_chunk"] > r["ms_per_chunk"]
-    assert main(["bench", "infer", "--channels", "16,x", "--json", str(out)]) == 1
+    assert r["inference_steps"] == 2 and r["denoiser"] == "mlp" and r["reference_ms_per_chunk"] > r["ms_per_chunk"]
+    assert main(["bench", "infer", "--denoiser", "unet", "--channels", "16,x", "--json", str(out)]) == 1
+    assert main(["bench", "infer", "--denoiser", "transformer", "--json", str(out)]) == 1
 
 
 def test_classify_sides() -> None:

@@ -1,0 +1,207 @@
+"""`demo bench infer`: milliseconds per action chunk of the diffusion policy (batch 1, CPU).
+
+Figure: :meth:`DiffusionPolicy.predict` as ``demo eval`` runs it (DDIM at the policy's default
+steps, FiLM conditioning cached across steps, traced and frozen denoiser, torch on ``threads``
+threads; ``demo eval`` uses 1). Reference, same run and same network: the published sampler,
+DDPM with all 100 training steps, run the published way (eager PyTorch, the whole network including
+its conditioning at every step). Also reported, to separate the two effects: DDPM-100 through the
+fast path, and DDIM at the default steps in eager mode.
+
+Latency does not depend on the weights' values, so without ``--run`` a freshly initialised network
+of the requested size is timed (observation/action sizes of the ``avoid`` task by default).
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.bench.common import machine
+from demo.train.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
+from demo.train.policy import PolicySpec
+from demo.train.unet1d import count_parameters
+
+TARGET_MS = 15.0
+TARGET_SPEEDUP = 8.0
+
+
+def time_interleaved(samplers: dict[str, Any], obs: torch.Tensor, seconds: float, min_rounds: int = 5) -> dict[str, dict[str, float]]:
+    """Per-call wall time of each ``sampler.predict``, called in turn round after round.
+
+    Interleaving makes every figure see the same machine: on a shared 2-core machine the load of
+    other processes changes by 2-5x within a minute, which would skew figures measured one after
+    the other. Warm-up calls (tracing included) are not timed.
+    """
+    g = torch.Generator().manual_seed(0)
+    times: dict[str, list[float]] = {name: [] for name in samplers}
+    with torch.inference_mode():
+        for sampler in samplers.values():
+            sampler.predict(obs, g)
+            sampler.predict(obs, g)
+        start = time.perf_counter()
+        rounds = 0
+        while rounds < min_rounds or time.perf_counter() - start < seconds:
+            for name, sampler in samplers.items():
+                t0 = time.perf_counter()
+                sampler.predict(obs, g)
+                times[name].append(time.perf_counter() - t0)
+            rounds += 1
+    out = {}
+    for name, ts in times.items():
+        ms = np.array(ts) * 1e3
+        # the median resists bursts of load; the min is the floor the code reaches on a quiet core
+        out[name] = {"ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()), "ms_min": float(ms.min()), "calls": len(ms)}
+    return out
+
+
+class _EagerReference(torch.nn.Module):
+    """The published inference loop: every step calls the full UNet (conditioning included)."""
+
+    def __init__(self, policy: DiffusionPolicy):
+        super().__init__()
+        self.policy = policy
+
+    @torch.no_grad()
+    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        p = self.policy
+        scheduler = p.scheduler()
+        ts = scheduler.timesteps(p.config.inference_steps, p.config.sampler, p.config.spacing)
+        b = obs.shape[0]
+        x = torch.randn((b, p.spec.horizon, p.spec.action_dim), generator=generator)
+        cond = obs.reshape(b, -1)
+        for k, t in enumerate(ts):
+            out = p.net(x, torch.full((b,), t), cond)
+            x = scheduler.step(out, x, t, ts[k + 1] if k + 1 < len(ts) else -1, p.config.sampler, generator)
+        return x
+
+
+def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_dim: int, n_obs: int, horizon: int) -> tuple[DiffusionPolicy, Any]:
+    """The run's policy and bundle, or a fresh network and None."""
+    if run:
+        from demo.errors import DemoError
+        from demo.train.checkpoint import load_bundle
+
+        bundle = load_bundle(run)
+        if not isinstance(bundle.policy, DiffusionPolicy):
+            raise DemoError(run, f"is a {bundle.algo!r} run, not a diffusion policy")
+        return bundle.policy, bundle
+    torch.manual_seed(0)
+    policy = DiffusionPolicy(PolicySpec(obs_dim, action_dim, n_obs, horizon), config)
+    return policy.eval(), None
+
+
+def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -> dict[str, Any]:
+    """Success of the bundle's policy as configured now, on ``demo eval``'s episodes for ``seed``."""
+    from demo.train.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
+    from demo.train.seeds import eval_seeds
+
+    task, options, robot = resolve_target(bundle, None, None, None)
+    env = make_eval_env(bundle, task, options, robot)
+    try:
+        t0 = time.perf_counter()
+        execution = execution_for(bundle, execute, None)
+        result = summarize(run_episodes_inline(bundle, env, eval_seeds(seed, episodes), execution))
+    finally:
+        env.close()
+    return {**result, "task": task, "execute": execution.execute, "seconds": time.perf_counter() - t0}
+
+
+def run(
+    run: str | None = None,
+    denoiser: str = "unet",
+    large: bool = False,
+    channels: tuple[int, ...] | None = None,
+    steps: int | None = None,
+    obs_dim: int = 28,
+    action_dim: int = 8,
+    n_obs: int = 2,
+    horizon: int = 16,
+    threads: int = 1,
+    seconds: float = 10.0,
+    episodes: int = 0,
+    seed: int = 0,
+    execute: int | None = None,
+) -> dict[str, Any]:
+    """Latency of the default sampler vs DDPM-100; with a run and ``episodes``, also both successes."""
+    base = DiffusionConfig(denoiser=denoiser, large=large, **({"channels": channels} if channels else {}))
+    policy, bundle = load_policy(run, base, obs_dim, action_dim, n_obs, horizon)
+    source = f"run {run}" if bundle is not None else "freshly initialised network"
+    if episodes and bundle is None:
+        from demo.errors import DemoError
+
+        raise DemoError("--episodes", "success needs a trained policy: pass --run")
+    if steps is not None:
+        with_sampler(policy, steps=steps)
+    default = policy.config
+    spec = policy.spec
+    obs = torch.randn(1, spec.n_obs, spec.obs_dim, generator=torch.Generator().manual_seed(1))
+    old_threads = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        t0 = time.perf_counter()
+        with_sampler(policy, jit=True).predict(obs, torch.Generator().manual_seed(0))
+        trace_s = time.perf_counter() - t0
+        T = default.train_steps
+        timed = time_interleaved(
+            {
+                "fast": policy,
+                "eager": with_sampler(copy.deepcopy(policy), jit=False),
+                "ddpm_fast": with_sampler(copy.deepcopy(policy), steps=T, sampler="ddpm", jit=True),
+                "reference": _EagerReference(with_sampler(copy.deepcopy(policy), steps=T, sampler="ddpm", jit=False)),
+            },
+            obs,
+            seconds,
+        )
+        fast, eager, ddpm_fast, reference = (timed[k] for k in ("fast", "eager", "ddpm_fast", "reference"))
+        rollouts: dict[str, Any] = {}
+        if episodes:
+            policy.config = default
+            rollouts["figure"] = success(bundle, episodes, seed, execute)
+            # the reference's success through the fast path: the same numbers as eager, faster
+            with_sampler(policy, steps=default.train_steps, sampler="ddpm", jit=True)
+            rollouts["reference"] = success(bundle, episodes, seed, execute)
+    finally:
+        policy.config = default
+        torch.set_num_threads(old_threads)
+    speedup = reference["ms_median"] / fast["ms_median"]
+    return {
+        "benchmark": "infer",
+        "policy": source,
+        "denoiser": default.denoiser,
+        "channels": list(default.net_channels) if default.denoiser == "unet" else None,
+        "parameters": count_parameters(policy.net),
+        "obs_dim": spec.obs_dim,
+        "action_dim": spec.action_dim,
+        "n_obs": spec.n_obs,
+        "horizon": spec.horizon,
+        "batch": 1,
+        "threads": threads,
+        "figure": f"DDIM {default.inference_steps} steps ({default.spacing} spacing), cached conditioning, traced+frozen denoiser",
+        "inference_steps": default.inference_steps,
+        "ms_per_chunk": fast["ms_median"],
+        "ms_per_chunk_detail": fast,
+        "ms_per_denoising_step": fast["ms_median"] / default.inference_steps,
+        "trace_seconds": trace_s,
+        "reference": f"DDPM {default.train_steps} steps (published default), eager, whole network every step, same weights",
+        "reference_ms_per_chunk": reference["ms_median"],
+        "reference_detail": reference,
+        "speedup_vs_reference": speedup,
+        "ddim_eager_ms_per_chunk": eager["ms_median"],
+        "ddpm_fast_path_ms_per_chunk": ddpm_fast["ms_median"],
+        "speedup_from_fewer_steps": ddpm_fast["ms_median"] / fast["ms_median"],
+        "speedup_from_fast_path": eager["ms_median"] / fast["ms_median"],
+        "target_ms": TARGET_MS,
+        "target_speedup": TARGET_SPEEDUP,
+        "meets_targets": bool(fast["ms_median"] <= TARGET_MS and speedup >= TARGET_SPEEDUP),
+        **({
+            "success": rollouts["figure"],
+            "reference_success": rollouts["reference"],
+            "success_points_below_reference": 100 * (rollouts["reference"]["success_rate"] - rollouts["figure"]["success_rate"]),
+            "eval_seed": seed,
+        } if rollouts else {}),
+        "machine": machine(),
+    }

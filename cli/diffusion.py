@@ -1,0 +1,88 @@
+"""Diffusion policy commands: `demo bench infer` (latency per action chunk), `demo bench modes` (avoid paths)."""
+
+from __future__ import annotations
+
+import typer
+
+from demo.cli.bench import bench_app
+
+
+@bench_app.command("infer")
+def bench_infer(
+    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    run: str = typer.Option(None, "--run", help="A diffusion run directory (default: a fresh network of --denoiser/--channels/--large)."),
+    denoiser: str = typer.Option("mlp", help="Fresh network: mlp (default, light) | unet (published)."),
+    large: bool = typer.Option(False, "--large", help="The published UNet size (256,512,1024); implies --denoiser unet."),
+    channels: str = typer.Option(None, help="UNet channels, e.g. 64,128,256; implies --denoiser unet."),
+    inference_steps: int = typer.Option(None, "--inference-steps", help="DDIM steps (default: the policy's)."),
+    threads: int = typer.Option(1, help="Torch threads (demo eval runs policies on 1)."),
+    seconds: float = typer.Option(10.0, help="Timing budget (all figures are timed in turn within it)."),
+    episodes: int = typer.Option(0, help="With --run: also roll out both samplers on demo eval's episodes (success)."),
+    seed: int = typer.Option(0, help="Evaluation seed (as demo eval --seed)."),
+    execute: int = typer.Option(None, help="With --episodes: actions executed per chunk (default: the run's)."),
+) -> None:
+    """Milliseconds per action chunk (batch 1, CPU): DDIM fast path vs DDPM-100 eager (same network)."""
+    from demo.bench.infer import run as run_bench
+    from demo.cli.output import console, table, write_json
+    from demo.errors import DemoError
+
+    try:
+        chans = tuple(int(c) for c in channels.split(",")) if channels else None
+    except ValueError:
+        raise DemoError("--channels", f"{channels!r} is not a comma-separated list of integers") from None
+    try:
+        r = run_bench(run=run, denoiser="unet" if (large or chans) else denoiser, large=large, channels=chans,
+                      steps=inference_steps, threads=threads, seconds=seconds, episodes=episodes, seed=seed,
+                      execute=execute)
+    except ValueError as exc:
+        raise DemoError("bench infer", str(exc)) from None
+    if json_out != "-":
+        rows = [
+            (r["figure"], r["ms_per_chunk"]),
+            ("same, eager (no tracing)", r["ddim_eager_ms_per_chunk"]),
+            ("DDPM 100 steps, fast path", r["ddpm_fast_path_ms_per_chunk"]),
+            ("reference: " + r["reference"], r["reference_ms_per_chunk"]),
+            ("speed-up vs reference (target >= 8)", f"{r['speedup_vs_reference']:.1f}x"),
+            ("target <= 15 ms and >= 8x", "met" if r["meets_targets"] else "NOT met"),
+        ]
+        if "success" in r:
+            for name, key in (("success, figure", "success"), ("success, reference (DDPM 100)", "reference_success")):
+                s = r[key]
+                rows.append((f"{name}, execute {s['execute']}", f"{s['successes']}/{s['episodes']} ({s['success_rate']:.1%})"))
+        console.print(
+            table(
+                f"bench infer ({r['denoiser']}, {r['parameters']:,} parameters"
+                + (f", channels {tuple(r['channels'])}" if r["channels"] else "") + f", {r['threads']} thread(s))",
+                ["figure", "ms per chunk"],
+                rows,
+            )
+        )
+    write_json(r, json_out)
+
+
+@bench_app.command("modes")
+def bench_modes(
+    diffusion: str = typer.Option(..., "--diffusion", help="Diffusion run directory (trained on avoid)."),
+    reference: str = typer.Option(..., "--reference", help="Reference run directory, e.g. MSE-BC on the same data."),
+    starts: int = typer.Option(20, help="Start states (demo eval's seed stream)."),
+    samples: int = typer.Option(3, help="Episodes per start state, each with another policy sampling seed."),
+    seed: int = typer.Option(0),
+    execute: int = typer.Option(None, help="Actions executed per chunk by the diffusion run (default: the run's own)."),
+    reference_execute: int = typer.Option(None, help="Same for the reference run."),
+    png: str = typer.Option("modes.png", "--png", help="Where to draw the end-effector paths."),
+    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+) -> None:
+    """avoid: EE paths of two policies from the same start states, which side they pass, PNG + JSON."""
+    from demo.bench.multimodal import run as run_modes
+    from demo.cli.output import console, table, write_json
+
+    r = run_modes(diffusion, reference, starts=starts, samples=samples, seed=seed, png=png, execute=execute,
+                  reference_execute=reference_execute)
+    if json_out != "-":
+        rows = []
+        for s in (r["figure"], r["reference"]):
+            m = s["modes"]
+            rows.append((f"{s['algo']} (execute {s['execute']})", f"{s['success_rate']:.1%}", m["left"], m["right"], m["none"], f"{s['starts_with_both_modes']}/{starts}"))
+        console.print(table(f"bench modes ({starts} starts x {samples} samples) -> {r.get('png')}",
+                            ["policy", "success", "left", "right", "none", "starts with both modes"], rows))
+    write_json(r, json_out)
