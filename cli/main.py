@@ -22,6 +22,14 @@ app = typer.Typer(
 )
 
 _DEBUG = False
+_ARGV: list[str] = []
+
+
+def invocation() -> str:
+    """The command as the user typed it (``demo ...``), for run records."""
+    import shlex
+
+    return shlex.join(["demo", *_ARGV])
 
 
 def _version(value: bool) -> None:
@@ -45,6 +53,8 @@ def _register() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    global _ARGV
+    _ARGV = list(sys.argv[1:] if argv is None else argv)
     _register()
     try:
         rc = app(args=argv, standalone_mode=False)

@@ -3,14 +3,12 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 
 import typer
 
 from demo.cli.bench import bench_app
-from demo.cli.main import app
+from demo.cli.main import app, invocation
 from demo.cli.output import console, table, write_json
 from demo.errors import DemoError
 
@@ -25,10 +23,6 @@ def parse_policy_opts(items: list[str]) -> dict[str, str]:
             raise DemoError("--policy-opt", f"{item!r} is not KEY=VALUE (e.g. hidden=512,512)")
         opts[key.strip()] = value.strip()
     return opts
-
-
-def command_line() -> str:
-    return "demo " + shlex.join(sys.argv[1:]) if sys.argv and Path(sys.argv[0]).name == "demo" else shlex.join(sys.argv)
 
 
 @app.command()
@@ -103,9 +97,9 @@ def train(
 
         dconfig = DaggerConfig(train=config, task=task, rounds=rounds, episodes_per_round=episodes_per_round,
                                round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate)
-        summary = train_dagger(dconfig, resume=resume, overwrite=overwrite, command=command_line())
+        summary = train_dagger(dconfig, resume=resume, overwrite=overwrite, command=invocation())
     else:
-        summary = train_bc(config, resume=resume, overwrite=overwrite, command=command_line())
+        summary = train_bc(config, resume=resume, overwrite=overwrite, command=invocation())
     rows = [
         ("run", summary["out"]),
         ("algo", algo),

@@ -26,7 +26,7 @@ def test_train_writes_a_run_and_json(data: Path, tmp_path: Path, capsys: pytest.
     summary = json.loads(js.read_text())
     assert summary["step"] == 30 and summary["expert_labels"] == 1000
     run = json.loads((out / "run.json").read_text())
-    assert run["command"].startswith("demo train") or "train" in run["command"]
+    assert run["command"].startswith("demo train ")
     assert run["policy"]["config"]["hidden"] == [16, 16]
     assert run["policy"]["execution"] == {"execute": 1, "ensemble": 0.01}  # chunking defaults to ACT's ensembling
     assert "trained" in capsys.readouterr().out
