@@ -102,8 +102,8 @@ class ConditionalUnet1D(nn.Module):
         self.mid = nn.ModuleList([ResidualBlock(mid, mid, kernel, groups), ResidualBlock(mid, mid, kernel, groups)])
         blocks += list(self.mid)
         self.up = nn.ModuleList()
-        # Each up level consumes the skip of the level below it and undoes one downsampling; the
-        # finest level's skip is left unused, as in the reference implementation.
+        # Up levels concatenate the skips coarsest first and each undoes one downsampling; the finest
+        # level's skip is left unused, as in the reference implementation.
         for c_out, c_in in reversed(list(zip(channels[:-1], channels[1:]))):
             pair = [ResidualBlock(2 * c_in, c_out, kernel, groups), ResidualBlock(c_out, c_out, kernel, groups)]
             blocks += pair
