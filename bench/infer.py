@@ -1,7 +1,7 @@
 """`demo bench infer`: milliseconds per action chunk of the diffusion policy (batch 1, CPU).
 
 Figure: :meth:`DiffusionPolicy.predict` as ``demo eval`` runs it (DDIM at the policy's default
-steps, FiLM conditioning cached across steps, traced and frozen denoiser, torch on ``threads``
+steps, conditioning cached across steps, traced and frozen denoiser, torch on ``threads``
 threads; ``demo eval`` uses 1). Reference, same run and same network: the published sampler,
 DDPM with all 100 training steps, run the published way (eager PyTorch, the whole network including
 its conditioning at every step). Also reported, to separate the two effects: DDPM-100 through the
@@ -59,7 +59,7 @@ def time_interleaved(samplers: dict[str, Any], obs: torch.Tensor, seconds: float
 
 
 class _EagerReference(torch.nn.Module):
-    """The published inference loop: every step calls the full UNet (conditioning included)."""
+    """The published inference loop: every step calls the whole network (conditioning included)."""
 
     def __init__(self, policy: DiffusionPolicy):
         super().__init__()
@@ -112,11 +112,11 @@ def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -
 
 def run(
     run: str | None = None,
-    denoiser: str = "unet",
+    denoiser: str = "mlp",
     large: bool = False,
     channels: tuple[int, ...] | None = None,
     steps: int | None = None,
-    obs_dim: int = 28,
+    obs_dim: int = 29,  # avoid / pick with the default observation keys
     action_dim: int = 8,
     n_obs: int = 2,
     horizon: int = 16,
