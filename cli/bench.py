@@ -49,12 +49,13 @@ def bench_collect(
     episodes: int = typer.Option(120, help="Episodes per measurement."),
     seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference."),
     seed: int = typer.Option(0),
+    rounds: int = typer.Option(2, min=1, help="Rounds of reference + 1 worker + 2 workers; best of each is reported."),
 ) -> None:
     """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene."""
     from demo.bench.collect import run
     from demo.cli.output import console, table, write_json
 
-    r = run(task=task, episodes=episodes, seconds=seconds, seed=seed)
+    r = run(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds)
     if json_out != "-":
         console.print(
             table(

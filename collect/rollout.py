@@ -82,8 +82,8 @@ def rollout(
     first_success: int | None = None
     streak_start: int | None = None
     steps = 0
+    frame = env.frame()
     for t in range(horizon):
-        frame = env.frame()
         command = actor(env, frame, t)
         if record:
             frame = dict(frame)
@@ -92,9 +92,10 @@ def rollout(
             frame["info.ee_target"] = unknown_target if command.ee_target is None else command.ee_target
             for key, value in frame.items():
                 frames.setdefault(key, []).append(np.asarray(value))
-        env.step(command.executed)
+        obs, _, success, _, _ = env.step(command.executed)
         steps = t + 1
-        if env.success():
+        frame = {**obs, "sim.state": env.get_state()}  # = env.frame(), from what step just observed
+        if success:
             first_success = t + 1 if first_success is None else first_success
             streak_start = t + 1 if streak_start is None else streak_start
             if steps - streak_start >= hold_steps:

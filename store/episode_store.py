@@ -40,10 +40,12 @@ from zarr.core.sync import sync
 
 from demo.errors import DemoError
 from demo.store import episode_table
+from demo.store.chunk_writer import RowWriter
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
 
 TABLE_FILE = "episodes.parquet"
 LOCK_FILE = ".lock"
+IMAGE_PREFIX = "obs.image_"  # camera images: the only compressed features
 CHUNK_BYTES = 64 * 1024  # small enough that an append re-compresses little, big enough for fast reads
 EpisodeSelection = None | str | Sequence[int] | np.ndarray
 
@@ -64,6 +66,7 @@ class EpisodeStore:
         self.writable = writable
         self._lock_fd: int | None = None
         self._arrays: dict[str, zarr.Array] = {}
+        self._row_writers: dict[str, RowWriter | None] = {}
 
     # ------------------------------------------------------------------ opening and creating
     @classmethod
@@ -88,8 +91,12 @@ class EpisodeStore:
         data = root.create_group("data")
         for key, spec in meta.features.items():
             rows = _chunk_rows(spec.shape, spec.np_dtype)
-            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype)
-        root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64")
+            # Low-dimensional data barely compresses and is appended in place (see chunk_writer).
+            compressors = "auto" if key.startswith(IMAGE_PREFIX) else None
+            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype,
+                              compressors=compressors)
+        root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64",
+                                               compressors=None)
         episode_table.write_atomic(episode_table.empty_table(), path / TABLE_FILE)
         store = cls(path, root, meta, episode_table.empty_table(), writable=True)
         store._acquire_lock()
@@ -174,10 +181,23 @@ class EpisodeStore:
         return self._arrays[key]
 
     def _ends_array(self) -> zarr.Array:
-        try:
-            return self._root["meta"]["episode_ends"]
-        except KeyError:
-            raise DemoError(self.path / "meta" / "episode_ends", "array is missing") from None
+        if "meta/episode_ends" not in self._arrays:  # a group lookup reads metadata from disk: keep the array
+            try:
+                self._arrays["meta/episode_ends"] = self._root["meta"]["episode_ends"]
+            except KeyError:
+                raise DemoError(self.path / "meta" / "episode_ends", "array is missing") from None
+        return self._arrays["meta/episode_ends"]
+
+    def _write_rows(self, key: str, array: zarr.Array, start: int, rows: np.ndarray) -> Any:
+        """Write ``rows`` at ``start`` now (RowWriter), or return zarr's coroutine that will."""
+        if key not in self._row_writers:
+            directory = self.path / ("meta" if key == "episode_ends" else "data") / key
+            self._row_writers[key] = RowWriter.for_array(array, directory)
+        writer = self._row_writers[key]
+        if writer is None:
+            return array.async_array.setitem(slice(start, start + len(rows)), rows)
+        writer.write(start, rows)
+        return None
 
     def _check_consistency(self) -> None:
         lengths = self._table.column("length").to_numpy()
@@ -400,14 +420,13 @@ class EpisodeStore:
         new_total = total + sum(lengths)
         n_before = self.num_episodes
         self._ensure_capacity(new_total, n_before + len(checked))
-        # All chunk writes of this append go to zarr at once: one event-loop round trip, not one per key.
-        writes = []
+        writes = []  # to zarr, for arrays a RowWriter cannot write: one event-loop round trip for all
         for key in self.meta.features:
             block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
-            writes.append(self.array(key).async_array.setitem(slice(total, new_total), block))
+            writes.append(self._write_rows(key, self.array(key), total, block))
         new_ends = total + np.cumsum(lengths, dtype=np.int64)
-        writes.append(self._ends_array().async_array.setitem(slice(n_before, n_before + len(checked)), new_ends))
-        _run_concurrently(writes)
+        writes.append(self._write_rows("episode_ends", self._ends_array(), n_before, new_ends))
+        _run_concurrently([w for w in writes if w is not None])
         table = self._table
         indices = []
         start = total

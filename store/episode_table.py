@@ -94,7 +94,8 @@ def write_atomic(table: pa.Table, path: Path) -> None:
     surviving power loss would need every chunk synced too.
     """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    pq.write_table(table, tmp)
+    # Rewritten at every commit: plain encoding writes it in ~half the time, and it stays small.
+    pq.write_table(table, tmp, compression="none", use_dictionary=False, write_statistics=False)
     os.replace(tmp, path)
 
 

@@ -21,9 +21,11 @@ def test_bench_load_small(tmp_path: Path) -> None:
 
 def test_bench_collect_cli_writes_json(tmp_path: Path) -> None:
     out = tmp_path / "collect.json"
-    assert main(["bench", "collect", "--task", "reach", "--episodes", "4", "--seconds", "0.2", "--json", str(out)]) == 0
+    assert main(["bench", "collect", "--task", "reach", "--episodes", "4", "--seconds", "0.2", "--rounds", "1",
+                 "--json", str(out)]) == 0
     r = json.loads(out.read_text())
     for key in ("single_process", "one_worker", "two_workers"):
         assert r[key]["frames"] > 0 and r[key]["success_rate"] == 1.0
     physics = r["reference_physics"]["control_steps_per_s"]
     assert r["ratio_to_physics"] == pytest.approx(r["one_worker"]["frames_per_s"] / physics)
+    assert len(r["samples"]["physics"]) == 2 and len(r["samples"]["one_worker"]) == 1

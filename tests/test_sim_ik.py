@@ -68,3 +68,23 @@ def test_direct_daqp_matches_mink_solve_ik():
             ours = ik._solve()
             ref = mink.solve_ik(ik.configuration, ik.tasks, ik.dt, "daqp", damping=ik.params.damping, limits=ik.limits)
             np.testing.assert_allclose(ours, ref * ik.dt, atol=1e-9)
+
+
+def test_daqp_fast_path_solves_minks_problem() -> None:
+    """Bounds instead of limit rows: the same dq as mink.solve_ik with the same tasks and limits."""
+    import mink
+
+    for task in ("pick", "avoid"):  # avoid adds the collision-avoidance rows
+        env = make_env(task)
+        rng = np.random.default_rng(0)
+        for seed in range(6):
+            env.reset(seed)
+            ik = env.ik
+            q = env.data.qpos[env.arm_qadr] + rng.normal(0.0, 0.3, len(env.arm_qadr))
+            ik.set_state(q, env.data.mocap_pos, env.data.mocap_quat)
+            pos = env.ee_pose()[0] + rng.normal(0.0, 0.1, 3)
+            ik.frame_task.set_target(mink.SE3(wxyz_xyz=np.r_[env.quat_to_world(down_quat(rng.uniform(-3, 3))), env.to_world(pos)]))
+            ours = ik._solve()
+            theirs = mink.solve_ik(ik.configuration, ik.tasks, ik.dt, "daqp", damping=ik.params.damping, limits=ik.limits) * ik.dt
+            assert ours is not None
+            np.testing.assert_allclose(ours, theirs, atol=1e-7)
