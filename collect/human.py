@@ -25,11 +25,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from demo.collect.retarget import retarget_features
+from demo.collect.rollout import Episode, StepCommand, rollout
 from demo.collect.scripted import CollectConfig, CollectResult, episode_seed, make_env_for, open_output, store_meta
 from demo.errors import DemoError
 from demo.store import StoreMeta
@@ -72,6 +73,40 @@ class InputEpisode:
     line: int  # 1-based line of the file where the episode starts
     seed: int | None  # env.reset seed from the header, if any
     operator: str | None
+
+
+class HumanCommand(NamedTuple):
+    """One control step of a person's recording, as the robot will execute it."""
+
+    q: np.ndarray  # arm joint targets (rad)
+    grip: float  # gripper closedness, 0 open .. 1 closed
+    ee_target: np.ndarray  # (7,) EE pose behind the command: position (m, base frame) + quaternion wxyz
+    ok: bool  # executable as the person gave it (reached by IK / inside the joint range)
+    error: tuple[float, float]  # what was not: (m, rad) for VR poses, (0, rad beyond the range) for joints
+
+
+def play_recording(
+    env: Any, seed: int, length: int, command_at: Callable[[int], HumanCommand]
+) -> tuple[Episode, np.ndarray, np.ndarray]:
+    """Execute a recording of ``length`` control steps from the current state (already reset).
+
+    Step ``t`` executes ``command_at(t)``; past the end the callee holds its last command, for
+    at most ``TAIL_S``. Returns the episode, ``info.ik_ok`` [T, 1] and ``info.ik_error`` [T, 2].
+    """
+    ok: list[bool] = []
+    err: list[tuple[float, float]] = []
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        c = command_at(t)
+        ok.append(c.ok)
+        err.append(c.error)
+        command = np.empty(len(c.q) + 1, dtype=np.float32)
+        command[:-1] = c.q
+        command[-1] = c.grip
+        return StepCommand(executed=command, label=command, ee_target=np.asarray(c.ee_target, dtype=np.float32))
+
+    episode = rollout(env, seed, act, reset=False, max_steps=length + int(round(TAIL_S * env.fps)))
+    return episode, np.array(ok, dtype=bool)[:, None], np.array(err, dtype=np.float32)
 
 
 def reset_seed(episode: InputEpisode, seed: int, index: int) -> int:

@@ -34,17 +34,17 @@ from typing import Any
 import numpy as np
 
 from demo.collect.human import (
-    TAIL_S,
     HumanCollectResult,
+    HumanCommand,
     HumanConfig,
     InputEpisode,
     check_time,
     episode_info,
     record_episodes,
+    play_recording,
     reset_seed,
 )
 from demo.collect.retarget import ArmFK
-from demo.collect.rollout import StepCommand, rollout
 from demo.errors import DemoError
 from demo.sim import load_robot
 
@@ -165,23 +165,15 @@ def kinesthetic_episode(env: Any, track: JointTrack, seed: int, fk: ArmFK | None
     env.set_arm(q[0])
     fk = fk or ArmFK(env)
     last = len(q) - 1
-    ok: list[bool] = []
-    err: list[tuple[float, float]] = []
 
-    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+    def command_at(t: int) -> HumanCommand:
         target = q[min(t + 1, last)]
         clipped = np.clip(target, lo, hi)
         excess = float(np.max(np.abs(target - clipped)))
-        ok.append(excess <= LIMIT_TOL)
-        err.append((0.0, excess))
-        command = np.empty(len(target) + 1, dtype=np.float32)
-        command[:-1] = clipped
-        command[-1] = grip[min(t, last)]
         pos, quat = fk(clipped)
-        return StepCommand(executed=command, label=command.copy(), ee_target=np.r_[pos, quat].astype(np.float32))
+        return HumanCommand(clipped, float(grip[min(t, last)]), np.r_[pos, quat], excess <= LIMIT_TOL, (0.0, excess))
 
-    episode = rollout(env, seed, act, reset=False, max_steps=len(q) + int(round(TAIL_S * env.fps)))
-    return episode, np.array(ok, dtype=bool)[:, None], np.array(err, dtype=np.float32)
+    return play_recording(env, seed, len(q), command_at)
 
 
 def collect_kinesthetic(

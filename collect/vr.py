@@ -49,8 +49,8 @@ import mujoco
 import numpy as np
 
 from demo.collect.human import (
-    TAIL_S,
     HumanCollectResult,
+    HumanCommand,
     HumanConfig,
     InputEpisode,
     as_float,
@@ -59,10 +59,10 @@ from demo.collect.human import (
     check_time,
     episode_info,
     record_episodes,
+    play_recording,
     reset_seed,
 )
 from demo.collect.retarget import IK_BACKENDS, Retargeter, RetargetParams, RetargetStep
-from demo.collect.rollout import StepCommand, rollout
 from demo.errors import DemoError
 from demo.sim.geometry import mat2quat, quat_conj, quat_mul
 
@@ -418,21 +418,13 @@ def vr_episode(env: Any, track: PoseTrack, seed: int, hand: HandRetargeter, sett
     env.reset(seed)
     hand.reset()
     last = len(stream) - 1
-    ok: list[bool] = []
-    err: list[tuple[float, float]] = []
 
-    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+    def command_at(t: int) -> HumanCommand:
         k = min(t, last)
         step, target = hand(stream.pos[k], stream.quat[k], bool(stream.engaged[k]))
-        ok.append(step.ok)
-        err.append((step.pos_err, step.rot_err))
-        command = np.empty(len(step.q) + 1, dtype=np.float32)
-        command[:-1] = step.q
-        command[-1] = stream.grip[k]
-        return StepCommand(executed=command, label=command, ee_target=target.astype(np.float32))
+        return HumanCommand(step.q, float(stream.grip[k]), target, step.ok, (step.pos_err, step.rot_err))
 
-    episode = rollout(env, seed, act, reset=False, max_steps=len(stream) + int(round(TAIL_S * env.fps)))
-    return episode, np.array(ok, dtype=bool)[:, None], np.array(err, dtype=np.float32)
+    return play_recording(env, seed, len(stream), command_at)
 
 
 def collect_vr(
