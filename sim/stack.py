@@ -6,7 +6,26 @@ each, distinct colours, random headings) are spread over x 0.38..0.64, |y| <= 0.
 at least 9 cm apart. Success: every cube i rests on the pad at level i (centre within 2 cm of the
 pad axis and 1 cm of height ``(i + 1/2) cube_size``) and the gripper is open.
 Observations: ``obs.object_pos`` [N,3], ``obs.object_quat`` [N,4], ``obs.goal_pos`` [3] (pad centre
-on the table), base frame.
+on the table), base frame; and three features that the expert's decisions hinge on, which an MLP
+could only compute from the others poorly (min-max normalised over the table, a centimetre is a
+few thousandths of the input range):
+
+- ``obs.object_in_ee`` [N,3]: cube centres in the EE frame, saturated to +-``NEAR`` m
+  (``NEAR tanh(x / NEAR)``): when to descend and when to close are centimetre decisions in this
+  frame (finger axis = y);
+- ``obs.object_yaw4`` [N,2]: sin and cos of 4 (cube yaw - EE yaw): the grasp heading relative to the
+  gripper's, which a cube repeats every 90 deg (the 6D form of its quaternion does not);
+- ``obs.object_to_place`` [N,3]: cube centre minus its place (pad axis, level i), saturated like
+  ``object_in_ee``: when to put down, when to let go, and whether the cube is done.
+
+Without them BC from 100 demonstrations (MLP 256x256, 4000 steps) succeeded on 3% of N = 1 episodes;
+with them on 70% (30 episodes each, the stepwise expert; dropping any one of the three: 20-33%).
+
+The expert descends onto a cube and onto its place through a funnel (``funnel``, see
+:func:`demo.sim.grasp.funnel_target`), turns to the face pair nearest its current heading, and
+lets go of a placed cube up to 1 cm above its level: rules that are continuous functions of the
+observed state where possible, so that an imitator's small errors meet labels that correct them
+(the stepwise "over, then down; back up if off" rule with hysteresis left learners hovering).
 
 Expert (state feedback): find the lowest level k whose cube is not in place. Holding cube k: carry
 it over the pad above every other cube and put it down. Holding another cube: park it on a free
@@ -25,8 +44,8 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical
-from demo.sim.grasp import BoxState, approach_and_grasp, carry_and_place, in_hand
+from demo.sim.geometry import canonical, quat2mat, yaw_of
+from demo.sim.grasp import BoxState, approach_and_grasp, box_yaw, carry_and_place, in_hand
 from demo.sim.scene import BaseFrame, add_box_body, add_marker_geom, add_mocap_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
 from demo.store import FeatureSpec
@@ -40,6 +59,7 @@ REGION = ((0.38, 0.64), (-0.25, 0.25))  # x, y ranges (m, base frame) for the pa
 SPACING = 0.09  # m between spawn positions
 COLOURS = [(0.85, 0.2, 0.2), (0.2, 0.6, 0.25), (0.2, 0.35, 0.85), (0.9, 0.75, 0.15), (0.6, 0.25, 0.75), (0.15, 0.75, 0.8)]
 # Where a wrongly held cube is put down, first free one wins (base frame x, y).
+NEAR = 0.05  # m: saturation of the near-field observations (object_in_ee, object_to_place)
 PARKING = [(x, y) for y in (-0.28, 0.28, -0.2, 0.2) for x in (0.36, 0.46, 0.56, 0.66)]
 
 
@@ -49,6 +69,10 @@ class StackParams(ExpertParams):
     clearance: float = 0.03  # m between a carried cube's bottom and the tops of the others
     grasp_yaw: float = 0.0  # rad added to the face-aligned gripper heading
     grasp_depth: float = 0.0  # m, grasp point above (+) / below (-) the cube centre
+    # Descend onto a cube (and onto its place) through a funnel of this slope (m per m, see
+    # demo.sim.grasp.funnel_target): a continuous function of the state, which a learner can imitate
+    # and which corrects its small errors. 0: "over, then down; back up if off" (stepwise, hysteresis).
+    funnel: float = 3.0
 
 
 class StackExpert(Expert):
@@ -73,10 +97,10 @@ class StackExpert(Expert):
             # Cube k, or a cube already in place (k counts it) that is still in the hand: put it
             # at its level, which releases it when it is there.
             place = np.array([pad[0], pad[1], (held + 0.5) * s])
-            return carry_and_place(self, env, boxes[held], place, top_of_others(held), p.clearance)
+            return carry_and_place(self, env, boxes[held], place, top_of_others(held), p.clearance, funnel=p.funnel)
         if held is not None:
             spot = self._parking(boxes, pad, held, s)
-            return carry_and_place(self, env, boxes[held], spot, top_of_others(held), p.clearance)
+            return carry_and_place(self, env, boxes[held], spot, top_of_others(held), p.clearance, funnel=p.funnel)
         if k == len(boxes):
             top = top_of_others(-1)
             return self.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], top + 0.08)]), ee_quat, 0.0)
@@ -84,7 +108,7 @@ class StackExpert(Expert):
         b = boxes[target]
         approach_z = max(b.pos[2] + p.grasp_depth + p.approach_height, top_of_others(target) + 0.04)
         others = [o.pos for i, o in enumerate(boxes) if i != target] + [pad]
-        a = approach_and_grasp(self, env, b, approach_z, p.grasp_depth, p.grasp_yaw, others)
+        a = approach_and_grasp(self, env, b, approach_z, p.grasp_depth, p.grasp_yaw, others, funnel=p.funnel)
         if a is None:  # held now but the contact check above just missed it: hold still
             return self.move(env, ee_pos, ee_quat, 1.0)
         return a
@@ -186,17 +210,36 @@ class Stack(Task):
             "obs.object_pos": FeatureSpec((n, 3), "float32", "cube centres (cube 0 first), base frame", "m", ("x", "y", "z")),
             "obs.object_quat": FeatureSpec((n, 4), "float32", "cube orientations, base frame, w >= 0", "1", ("w", "x", "y", "z")),
             "obs.goal_pos": FeatureSpec((3,), "float32", "pad centre on the table, base frame", "m", ("x", "y", "z")),
+            "obs.object_in_ee": FeatureSpec((n, 3), "float32", f"cube centres in the EE frame, saturated: {NEAR} tanh(p / {NEAR})",
+                                            "m", ("x", "y", "z")),
+            "obs.object_yaw4": FeatureSpec((n, 2), "float32", "sin, cos of 4 x (cube yaw - EE yaw)", "1", ("sin", "cos")),
+            "obs.object_to_place": FeatureSpec((n, 3), "float32",
+                                               f"cube centre minus its place on the pad (level i), base frame, saturated: {NEAR} tanh(d / {NEAR})",
+                                               "m", ("x", "y", "z")),
         }
 
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
         pos = np.empty((self.n, 3), dtype=np.float32)
         quat = np.empty((self.n, 4), dtype=np.float32)
+        in_ee = np.empty((self.n, 3), dtype=np.float32)
+        yaw4 = np.empty((self.n, 2), dtype=np.float32)
+        to_place = np.empty((self.n, 3), dtype=np.float32)
+        ee_pos, ee_quat = env.ee_pose()
+        ee_rot, ee_yaw = quat2mat(ee_quat), yaw_of(ee_quat)
+        pad = self.goal(env)
         for i, b in enumerate(self.bodies):
             p, q = env.body_pose(b)
             pos[i], quat[i] = p, canonical(q)
+            in_ee[i] = NEAR * np.tanh(ee_rot.T @ (p - ee_pos) / NEAR)
+            d = 4.0 * (box_yaw(q) - ee_yaw)
+            yaw4[i] = math.sin(d), math.cos(d)
+            to_place[i] = NEAR * np.tanh((p - np.array([pad[0], pad[1], (i + 0.5) * self.size])) / NEAR)
         out["obs.object_pos"] = pos
         out["obs.object_quat"] = quat
-        out["obs.goal_pos"] = self.goal(env).astype(np.float32)
+        out["obs.goal_pos"] = pad.astype(np.float32)
+        out["obs.object_in_ee"] = in_ee
+        out["obs.object_yaw4"] = yaw4
+        out["obs.object_to_place"] = to_place
 
     def success(self, env: "Env") -> bool:
         done = self.levels_done(env, self.boxes(env), self.goal(env), xy_tol=0.02, z_tol=0.01)

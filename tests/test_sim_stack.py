@@ -66,3 +66,63 @@ def test_parks_a_cube_held_out_of_order():
 
     r = run_expert(env, 3, perturb=swap, max_steps=3 * env.horizon)
     assert moved and r.success
+
+
+def test_near_field_observations() -> None:
+    """object_in_ee / object_to_place: offsets saturated at NEAR; object_yaw4: the relative yaw mod 90 deg."""
+    from demo.sim.geometry import quat2mat, yaw_of
+    from demo.sim.stack import NEAR
+
+    env = make_env("stack", blocks=2)
+    task = env.task
+    obs = env.reset(3)
+    ee_pos, ee_quat = env.ee_pose()
+    pad = obs["obs.goal_pos"]
+    for i, p in enumerate(obs["obs.object_pos"].astype(float)):
+        rel = quat2mat(ee_quat).T @ (p - ee_pos)
+        np.testing.assert_allclose(obs["obs.object_in_ee"][i], NEAR * np.tanh(rel / NEAR), atol=1e-5)
+        assert np.abs(obs["obs.object_to_place"][i]).max() <= NEAR
+        assert abs(np.hypot(*obs["obs.object_yaw4"][i]) - 1) < 1e-5
+    # A cube at its place reads zero there; turning it by 90 deg changes nothing a gripper can tell.
+    place_free_body(env, task.joints[0], np.array([pad[0], pad[1], task.size / 2]), 0.4)
+    env.data.qvel[:] = 0
+    import mujoco
+
+    mujoco.mj_forward(env.model, env.data)
+    env._obs_cache = None
+    a = env.observe()
+    assert np.abs(a["obs.object_to_place"][0]).max() < 1e-3
+    place_free_body(env, task.joints[0], np.array([pad[0], pad[1], task.size / 2]), 0.4 + np.pi / 2)
+    mujoco.mj_forward(env.model, env.data)
+    env._obs_cache = None
+    b = env.observe()
+    np.testing.assert_allclose(a["obs.object_yaw4"][0], b["obs.object_yaw4"][0], atol=1e-4)
+    d = 4 * (0.4 - yaw_of(ee_quat))
+    np.testing.assert_allclose(a["obs.object_yaw4"][0], [np.sin(d), np.cos(d)], atol=1e-3)
+
+
+def test_funnel_target_is_continuous_and_converges() -> None:
+    from demo.sim.grasp import FUNNEL_FAR, funnel_target
+
+    goal = np.array([0.5, 0.0, 0.02])
+    top = 0.12
+    # On the axis it aims at the goal; far off the axis and low, straight up; far and clear, over at the top.
+    np.testing.assert_allclose(funnel_target(np.array([0.5, 0.0, 0.08]), goal, top, 1.0, 3.0), goal)
+    low_far = funnel_target(np.array([0.5 + 2 * FUNNEL_FAR, 0.0, 0.03]), goal, top, 0.0, 3.0)
+    np.testing.assert_allclose(low_far, [0.5 + 2 * FUNNEL_FAR, 0.0, top])
+    np.testing.assert_allclose(funnel_target(np.array([0.7, 0.1, 0.3]), goal, top, 1.0, 3.0), [0.5, 0.0, top])
+    # No jumps: nearby states, nearby targets (what makes the expert imitable).
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        p = goal + rng.uniform([-0.08, -0.08, 0.0], [0.08, 0.08, 0.12])
+        lift = float(rng.uniform())
+        a = funnel_target(p, goal, top, lift, 3.0, 0.1)
+        b = funnel_target(p + rng.normal(0, 1e-4, 3), goal, top, min(1.0, lift + 1e-4), 3.0, 0.1)
+        assert np.abs(a - b).max() < 5e-3
+
+
+def test_stepwise_expert_still_available() -> None:
+    """funnel = 0 restores the original over-then-down approach, which also stacks."""
+    env = make_env("stack", blocks=1)
+    r = run_expert(env, 0, funnel=0.0)
+    assert r.success

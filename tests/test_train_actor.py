@@ -82,3 +82,13 @@ def test_far_out_observations_are_clipped() -> None:
 def test_execution_is_checked_against_the_chunk() -> None:
     with pytest.raises(ValueError):
         make_actor(2, ExecConfig(execute=3))
+
+
+def test_binary_dims_are_executed_open_or_closed() -> None:
+    """ExecConfig.binary snaps those dims at 0.5 (a gripper), leaves the others, and survives JSON."""
+    execution = ExecConfig(1, None, binary=(0,))
+    actions = run(make_actor(1, execution), 8)  # dim 0 follows x / 10: 0, 0.1, ..., 0.7
+    assert actions[:, 0].tolist() == [0, 0, 0, 0, 0, 1, 1, 1]
+    assert np.allclose(actions[:, 1], np.arange(8) / 10)  # not a binary dim: as predicted
+    assert ExecConfig.from_json(execution.to_json()) == execution
+    assert ExecConfig.from_json({"execute": 2}).binary == ()  # runs recorded before the option

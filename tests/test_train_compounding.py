@@ -30,6 +30,12 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
     for method in ("bc", "dagger", "bc_chunk"):
         assert row[method]["episodes"] == 2 and 0.0 <= row[method]["success_rate"] <= 1.0
     assert Path(result["png"]).stat().st_size > 5000
+    # Every method executes the gripper as open/closed (the store's action "gripper" entry).
+    from demo.train.checkpoint import load_bundle
+
+    for method in ("bc", "dagger", "bc_chunk"):
+        assert load_bundle(row[method]["run"]).execution.binary == (7,)
+    assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] is None
     assert "DAgger" in format_table(result)
     # A rerun reuses every stage (stores, runs, evaluations) instead of repeating it.
     again = run(config, log=lambda text: None)

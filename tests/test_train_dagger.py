@@ -101,3 +101,49 @@ def test_bad_schedules_and_tasks_fail_clearly(demos: Path, tmp_path: Path) -> No
         dagger(demos, tmp_path / "b", gate="deviation:-1")
     with pytest.raises(DemoError, match="holds 'reach' demonstrations"):
         dagger(demos, tmp_path / "c", task="pick")
+
+
+def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tmp_path: Path) -> None:
+    """An early learner's flailing rollouts must not stretch the input ranges the states that matter live in."""
+    from demo.train import bc
+    from demo.train.checkpoint import load_bundle
+
+    dagger(demos, tmp_path / "keep")
+    dagger(demos, tmp_path / "refit", refit_normalizers=True)
+    keep, refit = load_bundle(tmp_path / "keep"), load_bundle(tmp_path / "refit")
+    store = EpisodeStore.open(tmp_path / "keep" / "data.zarr")
+    rounds = store.column("dagger_round")
+    tc = TrainConfig(data=str(tmp_path / "keep" / "data.zarr"), out="", val_fraction=0.25)
+    s0 = bc.setup(tc, store, among=np.flatnonzero(rounds == 0))
+    np.testing.assert_array_equal(keep.obs_norm.low, s0.obs_norm.low)
+    np.testing.assert_array_equal(keep.obs_norm.high, s0.obs_norm.high)
+    # Refit: the ranges are those of every training frame of the aggregate, rollouts included.
+    from demo.train.normalizer import MinMaxNormalizer
+
+    agg = EpisodeStore.open(tmp_path / "refit" / "data.zarr")
+    raw = bc.load_raw(agg, s0.obs_spec, s0.relative)
+    train_eps = np.union1d(s0.data.train_episodes, np.flatnonzero(agg.column("dagger_round") >= 1))
+    fitted = MinMaxNormalizer.fit(raw.obs[bc.frame_indices(raw.ends, train_eps)])
+    np.testing.assert_allclose(refit.obs_norm.low, fitted.low, atol=1e-6)
+    assert (fitted.low < keep.obs_norm.low - 1e-3).any()  # the rollouts did leave the demonstrations' ranges
+
+
+def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
+    """A learner that moves the arm as the expert does but leaves the gripper wrong is taken over."""
+    from demo.train.dagger import dagger_episode
+
+    env = make_env("reach", **REACH)
+
+    class ArmOnly:  # the expert's arm targets, the opposite gripper command
+        def reset(self, seed: int, env_: object) -> None:
+            self.expert = env.expert()
+
+        def act(self, frame: dict) -> np.ndarray:
+            a = np.asarray(self.expert.act(env), dtype=np.float32).copy()
+            a[-1] = 1.0 - a[-1]
+            return a
+
+    n_arm = len(env.robot.arm_joints)
+    data, info = dagger_episode(env, ArmOnly(), seed=5, beta=0.0, gate=0.05, n_arm=n_arm)
+    flags = data[LABEL_KEY].astype(bool)
+    assert flags.all() and info["labels"] == len(flags)

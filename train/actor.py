@@ -38,6 +38,10 @@ class ExecConfig:
 
     execute: int = 1  # actions executed from each chunk before the next query
     ensemble: float | None = None  # temporal ensembling decay m (ACT uses 0.01); None = off
+    # Action dims executed as binary commands (>= 0.5 -> 1, else 0), e.g. a gripper whose labels are
+    # open/closed: a regressed 0.07 leaves the fingers a little closed, the measured closedness then
+    # reads as "closing" and the policy holds still, waiting for a grasp it never makes.
+    binary: tuple[int, ...] = ()
 
     def check(self, horizon: int) -> None:
         if not 1 <= self.execute <= horizon:
@@ -46,12 +50,16 @@ class ExecConfig:
             raise ValueError(f"the ensembling decay must be >= 0, got {self.ensemble}")
 
     def to_json(self) -> dict[str, Any]:
-        return {"execute": self.execute, "ensemble": self.ensemble}
+        d: dict[str, Any] = {"execute": self.execute, "ensemble": self.ensemble}
+        if self.binary:  # recorded only when set: runs without it read as before
+            d["binary"] = list(self.binary)
+        return d
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "ExecConfig":
         e = d.get("ensemble")
-        return cls(execute=int(d.get("execute", 1)), ensemble=None if e is None else float(e))
+        return cls(execute=int(d.get("execute", 1)), ensemble=None if e is None else float(e),
+                   binary=tuple(int(i) for i in d.get("binary") or ()))
 
 
 class PolicyActor:
@@ -120,7 +128,11 @@ class PolicyActor:
             w = np.exp(-self.execution.ensemble * np.arange(len(acts)))
             action = (w[:, None] * acts).sum(axis=0) / w.sum()
         self.t += 1
-        return action.astype(np.float32)
+        action = action.astype(np.float32)
+        if self.execution.binary:
+            dims = list(self.execution.binary)
+            action[dims] = (action[dims] >= 0.5).astype(np.float32)
+        return action
 
     def act(self, frame: dict[str, np.ndarray]) -> np.ndarray:
         """The action to send to the environment (through the adapter)."""

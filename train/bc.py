@@ -71,6 +71,7 @@ class TrainConfig:
     chunk: int = 1  # actions predicted per query (action chunking when > 1)
     execute: int = 1  # actions executed per query
     ensemble: float | None = None  # temporal ensembling decay (ACT: 0.01); None = off
+    binary_gripper: bool = False  # execute the action's "gripper" entry as open/closed (>= 0.5: 1), see ExecConfig.binary
     obs_keys: tuple[str, ...] = ()  # default: low-dim obs.* keys except velocities (demo.train.observation); ("all",) = all
     obs_noise: float = 0.0  # std of Gaussian noise added to normalised observations (augmentation)
     relative_actions: bool = True  # predict joint targets relative to the current joint positions (demo.train.relative)
@@ -252,6 +253,12 @@ class BatchSource:
         if len(idx) > n:
             idx = np.sort(np.random.default_rng(seed).choice(idx, size=n, replace=False))
         return self.get(idx)
+
+
+def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
+    """How the trained policy's chunks and gripper are executed (recorded in the run)."""
+    binary = tuple(i for i, name in enumerate(action.names) if name == "gripper") if config.binary_gripper else ()
+    return ExecConfig(config.execute, config.ensemble, binary)
 
 
 # ================================================================================== 4. optimisation
@@ -590,7 +597,7 @@ def train(config: TrainConfig, *, progress: bool = True, resume: bool = False, o
     finally:
         store.close()
     data = s.data
-    execution = ExecConfig(config.execute, config.ensemble)
+    execution = execution_config(config, store.meta.action)
     policy = build_policy(config.algo, s.spec, policy_config(config.algo, config.policy))
     run = run_record(config, store, s, policy, execution, command)
     prepare_run_dir(out, resume, overwrite)

@@ -15,17 +15,20 @@
    - ``exp:P``: ``beta_r = P ** r``.
 
    With ``--gate deviation:THRESH`` (HG-DAgger) the learner drives; the expert takes over when the
-   learner's arm joint targets differ from its own by more than THRESH rad (max over joints) and
-   hands back once they agree within THRESH/2 (hysteresis, as a person would); only the frames it
-   was in control of become labels.
+   learner's arm joint targets differ from its own by more than THRESH rad (max over joints), or
+   its gripper command by more than :data:`GRIPPER_GATE`, and hands back once they agree within
+   THRESH/2 (hysteresis, as a person would); only the frames it was in control of become labels.
 2. The episodes are appended to ``RUN/data.zarr`` (source ``dagger``, columns ``dagger_round``,
    ``labels``), each visited state labelled by the expert (``action``), the executed action in
    ``info.executed_action``.
-3. A new learner is trained for ``round_steps`` on the aggregate (Ross et al.'s "train on D"), its
-   normalisers refitted to it: the learner's own states reach far outside the demonstrations' ranges
-   (a knocked-over cube), and inputs scaled for the demonstrations alone would swamp the network.
-   ``warm_start`` fine-tunes the previous learner instead, keeping round 0's normalisers (cheaper;
-   inputs outside them are clipped, see :data:`demo.train.normalizer.OBS_CLIP`).
+3. A new learner is trained for ``round_steps`` on the aggregate (Ross et al.'s "train on D") with
+   round 0's normalisers, fitted on the demonstrations: an early learner's rollouts flail (joints to
+   their limits, the EE half a metre up), and min-max ranges refitted to them leave the states that
+   matter a fraction of the input range (on ``stack``, the joint ranges were 4x wider after the
+   rounds; inputs outside the demonstrations' ranges are clipped, see
+   :data:`demo.train.normalizer.OBS_CLIP`).
+   ``refit_normalizers`` refits them to the aggregate instead; ``warm_start`` fine-tunes the
+   previous learner instead of training a new one (cheaper).
 
 Expert labels are counted: every frame of DATA's episodes that training used (validation
 included) plus every labelled frame of every round, so comparisons with BC can be made at equal
@@ -53,13 +56,13 @@ from demo.errors import DemoError
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.train import bc
 from demo.train import checkpoint as ckpt
-from demo.train.actor import ExecConfig
 from demo.train.evaluate import make_actor, single_thread
 from demo.train.policy import build_policy, policy_config
 from demo.train.progress import TrainProgress
 from demo.train.seeds import dagger_seeds
 
 DATA_DIR = "data.zarr"
+GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 closed) from the expert's is a deviation
 
 
 @dataclass
@@ -72,6 +75,7 @@ class DaggerConfig:
     episodes_per_round: int = 10
     round_steps: int = 2000
     warm_start: bool = False  # fine-tune the previous learner instead of training a new one each round
+    refit_normalizers: bool = False  # refit the normalisers to each round's aggregate (default: keep the demonstrations')
     beta: str = "indicator"  # indicator | linear:N | exp:P
     gate: str | None = None  # deviation:THRESH (rad) for HG-DAgger
 
@@ -175,7 +179,11 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | N
         label = np.asarray(expert.act(env), dtype=np.float32)
         mine = np.asarray(actor.act(frame), dtype=np.float32)
         if gate is not None:
+            # A gripper the learner leaves open where the expert closes it (or the reverse) is
+            # straying too, though no arm joint deviates: the stall a supervisor steps in for.
             deviation = float(np.abs(mine[:n_arm] - label[:n_arm]).max())
+            if mine.shape[0] > n_arm and abs(float(mine[n_arm] - label[n_arm])) > GRIPPER_GATE:
+                deviation = max(deviation, 2.0 * gate)
             if in_control[0]:
                 in_control[0] = deviation > gate / 2
             else:
@@ -245,7 +253,7 @@ def train_dagger(config: DaggerConfig, *, progress: bool = True, resume: bool = 
     demos = np.flatnonzero(store.column("dagger_round") == 0)
     s0 = bc.setup(round0, store, among=demos)
     demo_train, demo_val = s0.data.train_episodes, s0.data.val_episodes
-    execution = ExecConfig(tc.execute, tc.ensemble)
+    execution = bc.execution_config(tc, store.meta.action)
     demo_labels = s0.data.frames(np.union1d(demo_train, demo_val))
 
     def round_episodes(r: int) -> np.ndarray:
@@ -256,7 +264,7 @@ def train_dagger(config: DaggerConfig, *, progress: bool = True, resume: bool = 
         """Data and normalisers of the learner trained after round ``r``."""
         if r == 0:
             return s0
-        if config.warm_start:
+        if config.warm_start or not config.refit_normalizers:
             data = bc.load_raw(store, s0.obs_spec, s0.relative).dataset(s0.obs_norm, s0.action_norm, round_episodes(r), demo_val)
             return bc.Setup(data, s0.obs_spec, s0.obs_norm, s0.action_norm, s0.relative, s0.spec)
         return bc.setup(round0, store, split=(round_episodes(r), demo_val))

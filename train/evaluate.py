@@ -244,7 +244,7 @@ class EvalConfig:
 
 
 def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None) -> ExecConfig:
-    execution = ExecConfig(bundle.execution.execute, bundle.execution.ensemble)
+    execution = ExecConfig(bundle.execution.execute, bundle.execution.ensemble, bundle.execution.binary)
     if execute is not None:
         execution.execute = execute
     if ensemble is not None:
