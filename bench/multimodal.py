@@ -1,4 +1,4 @@
-"""`demo bench modes`: end-effector paths of two policies from the same start states (task ``avoid``).
+"""`demo bench multimodal`: end-effector paths of two policies from the same start states (task ``avoid``).
 
 For each of ``starts`` start states (``demo eval``'s seed stream, :func:`demo.train.seeds.eval_seeds`),
 each policy runs ``samples`` episodes that differ only in the seed of the policy's own sampling
@@ -89,47 +89,56 @@ def summarize(result: dict[str, Any], starts: int) -> dict[str, Any]:
     }
 
 
-def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: str | Path, starts_shown: int = 6) -> Path:
+def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: str | Path, starts_shown: int = 5) -> Path:
+    """One row per policy, one column per start state (the first ``starts_shown``, not picked): every
+    sampled path from that start, top view, relative to the obstacle, coloured by the side it passes."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Rectangle
 
-    colors = plt.get_cmap("tab10")
-    fig, axes = plt.subplots(1, len(results), figsize=(5.2 * len(results), 4.8), squeeze=False)
-    for ax, res, summ in zip(axes[0], results, summaries):
-        for e in res["episodes"]:
-            if e["start"] >= starts_shown:
-                continue
-            # paths relative to the obstacle centre, so start states with shifted obstacles overlay
-            xy = e["ee_xy"] - e["obstacle"][:2]
-            c = colors(e["start"] % 10)
-            ax.plot(xy[:, 0], xy[:, 1], color=c, lw=1.3, alpha=0.85, ls="-" if e["success"] else "--")
-            ax.plot(*xy[0], "o", color=c, ms=4)
-            g = e["goal"][:2] - e["obstacle"][:2]
-            ax.plot(*g, "*", color=c, ms=9)
-        hx, hy = OBSTACLE_HALF_XY
-        ax.add_patch(Rectangle((-hx, -hy), 2 * hx, 2 * hy, color="0.45", alpha=0.8))
+    side_color = {"left": "tab:blue", "right": "tab:orange", "none": "tab:red"}
+    cols = min(starts_shown, 1 + max(e["start"] for e in results[0]["episodes"]))
+    fig, axes = plt.subplots(len(results), cols, figsize=(2.6 * cols, 2.9 * len(results)), squeeze=False,
+                             sharex=True, sharey=True)
+    hx, hy = OBSTACLE_HALF_XY
+    for row, (res, summ) in enumerate(zip(results, summaries)):
+        for col in range(cols):
+            ax = axes[row, col]
+            eps = [e for e in res["episodes"] if e["start"] == col]
+            for e in eps:
+                xy = e["ee_xy"] - e["obstacle"][:2]
+                ax.plot(xy[:, 0], xy[:, 1], color=side_color[e["mode"]], lw=1.4, alpha=0.8, ls="-" if e["success"] else "--")
+            if eps:
+                ax.plot(*(eps[0]["ee_xy"][0] - eps[0]["obstacle"][:2]), "ko", ms=4)
+                ax.plot(*(eps[0]["goal"][:2] - eps[0]["obstacle"][:2]), "g*", ms=10)
+                ax.set_title(f"start {col}: " + " ".join(sorted(e["mode"][0].upper() for e in eps)), fontsize=8)
+            ax.add_patch(Rectangle((-hx, -hy), 2 * hx, 2 * hy, color="0.45", alpha=0.8))
+            ax.set_xlim(-0.3, 0.3)
+            ax.set_ylim(-0.3, 0.3)
+            ax.set_aspect("equal")
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
         m = summ["modes"]
-        ax.set_title(
-            f"{summ['algo']} (execute {summ['execute']}): success {summ['success_rate']:.0%}, left {m['left']} / right {m['right']}"
-            f" / none {m['none']}\nboth modes from the same start: {summ['starts_with_both_modes']} starts",
-            fontsize=9,
+        axes[row, 0].set_ylabel(
+            f"{summ['algo']} (execute {summ['execute']})\nsuccess {summ['success_rate']:.0%}, L {m['left']} / R {m['right']}"
+            f" / none {m['none']}\nboth sides from one start: {summ['starts_with_both_modes']}\ny - obstacle y (m)",
+            fontsize=8,
         )
-        ax.set_xlabel("x - obstacle x (m, forward)")
-        # the task's workspace; a diverging policy's excursions leave the frame
-        ax.set_xlim(-0.3, 0.32)
-        ax.set_ylim(-0.3, 0.3)
-        ax.set_aspect("equal")
-        ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("y - obstacle y (m, left)")
+    for ax in axes[-1]:
+        ax.set_xlabel("x - obstacle x (m)", fontsize=8)
+    legend = [Line2D([], [], color=c, label=f"passes {k}") for k, c in side_color.items()]
+    legend += [Line2D([], [], color="k", ls="--", label="failed")]
+    fig.legend(handles=legend, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(
-        f"avoid: EE paths from the same {starts_shown} start states (colour; o start, * goal), top view, "
-        "relative to the obstacle; dashed = failed",
+        f"avoid: end-effector paths (top view) sampled from the same start states, "
+        f"{sum(e['start'] == 0 for e in results[0]['episodes'])} per start and policy;"
+        " o start, * goal, grey: obstacle",
         fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -146,7 +155,7 @@ def run(diffusion: str, reference: str, starts: int = 20, samples: int = 3, seed
     results = [rollouts(diffusion, starts, samples, seed, execute), rollouts(reference, starts, samples, seed, reference_execute)]
     summaries = [summarize(r, starts) for r in results]
     out: dict[str, Any] = {
-        "benchmark": "modes",
+        "benchmark": "multimodal",
         "task": "avoid",
         "starts": starts,
         "samples_per_start": samples,

@@ -53,9 +53,9 @@ def test_classify_sides() -> None:
     assert classify(left[:5], obstacle) == "none"  # never got past the obstacle
 
 
-def test_bench_modes_end_to_end(tmp_path) -> None:
-    """Collect a few avoid demos, train diffusion and BC briefly, compare their paths: JSON + PNG."""
-    from demo.bench.multimodal import run as bench_modes
+def test_bench_multimodal_end_to_end(tmp_path) -> None:
+    """Collect a few avoid demos, train diffusion and BC briefly, compare their paths: JSON + PNG (the CLI)."""
+    from demo.cli.main import main
     from demo.collect.scripted import CollectConfig, collect_scripted
     from demo.train.bc import TrainConfig, train
     from demo.train.diffusion import train_config
@@ -66,11 +66,16 @@ def test_bench_modes_end_to_end(tmp_path) -> None:
     train(train_config(out=str(tmp_path / "diffusion"), policy={"denoiser": "mlp", "width": 32, "depth": 1,
                                                                    "inference_steps": 2}, **common), progress=False)
     train(TrainConfig(out=str(tmp_path / "bc"), algo="bc", policy={"hidden": (16,)}, **common), progress=False)
-    png = tmp_path / "modes.png"
-    r = bench_modes(str(tmp_path / "diffusion"), str(tmp_path / "bc"), starts=2, samples=2, png=str(png))
-    assert png.stat().st_size > 10_000
+    png, out = tmp_path / "modes.png", tmp_path / "modes.json"
+    rc = main(["bench", "multimodal", "--diffusion", str(tmp_path / "diffusion"), "--reference", str(tmp_path / "bc"),
+               "--starts", "2", "--samples", "2", "--png", str(png), "--json", str(out)])
+    assert rc == 0 and png.stat().st_size > 10_000
+    r = json.loads(out.read_text())
     for side in ("figure", "reference"):
         s = r[side]
         assert s["episodes"] == 4 and sum(s["modes"].values()) == 4 and 0 <= s["success_rate"] <= 1
-    assert r["figure"]["algo"] == "diffusion" and r["reference"]["algo"] == "bc"
-    json.dumps(r)
+        assert 0 <= s["starts_with_both_modes"] <= 2
+    assert r["figure"]["algo"] == "diffusion" and r["reference"]["algo"] == "bc" and r["png"] == str(png)
+    # a missing run directory: one error line, exit 1
+    assert main(["bench", "multimodal", "--diffusion", str(tmp_path / "nope"), "--reference", str(tmp_path / "bc"),
+                 "--png", str(png)]) == 1

@@ -69,9 +69,6 @@ class NoiseScheduler:
         """What the network is trained to output (MSE regression target)."""
         return noise if self.prediction == "epsilon" else x0
 
-    def sample_timesteps(self, batch: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        return torch.randint(0, self.train_steps, (batch,), generator=generator)
-
     # ------------------------------------------------------------------ inference
     def timesteps(self, steps: int, sampler: str = "ddim", spacing: str = "quadratic") -> list[int]:
         """``steps`` distinct, decreasing training timesteps visited by a sampler, first ``T-1``.

@@ -1,6 +1,6 @@
 """Episode seeds of training-time processes, disjoint from the seeds demonstrations are collected with.
 
-``demo collect --seed S`` starts episode ``i`` from ``episode_seed(S, i)``
+``demo collect --seed S`` starts episode ``i`` from ``episode_seed(S, i)`` (avoid: ``episode_seed(S, i // 2)``, pairs share a start state)
 (:func:`demo.collect.scripted.episode_seed`, numpy ``SeedSequence([S, i])``). Every other process
 that starts episodes shifts the run seed by its own offset before deriving episode seeds, so its
 initial states are drawn from a different stream:
