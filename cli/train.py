@@ -177,6 +177,7 @@ def bench_compounding(
     gate: str = typer.Option("none", help="HG-DAgger gate, e.g. deviation:0.05; 'none' for plain DAgger."),
     steps: int = typer.Option(4000, help="Optimiser steps of BC and of DAgger's round 0."),
     round_steps: int = typer.Option(4000, help="DAgger optimiser steps per round."),
+    hidden: str = typer.Option("256,256", help="Hidden widths of every method's MLP."),
     chunk: int = typer.Option(16, help="Chunk length of the chunked-BC line."),
     eval_episodes: int = typer.Option(100, help="Evaluation episodes per policy."),
     workers: int = typer.Option(1, help="Processes for collection and evaluation."),
@@ -187,7 +188,8 @@ def bench_compounding(
     config = CompoundingConfig(out=str(out), blocks=tuple(int(b) for b in blocks.split(",")), seed=seed, demos=demos,
                                pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta,
                                gate=None if gate == "none" else gate, steps=steps,
-                               round_steps=round_steps, chunk=chunk, eval_episodes=eval_episodes, workers=workers)
+                               round_steps=round_steps, hidden=tuple(int(h) for h in hidden.split(",")), chunk=chunk,
+                               eval_episodes=eval_episodes, workers=workers)
     result = run(config, log=lambda text: console.print(text, highlight=False, markup=False))
     if json_out != "-":
         console.print(format_table(result), highlight=False)

@@ -40,3 +40,12 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
     # A rerun reuses every stage (stores, runs, evaluations) instead of repeating it.
     again = run(config, log=lambda text: None)
     assert again["rows"][0]["bc"] == row["bc"] and again["seconds"] < result["seconds"]
+    # ... but not with a different configuration: that needs another --out.
+    import dataclasses
+
+    import pytest
+
+    from demo.errors import DemoError
+
+    with pytest.raises(DemoError, match="other hidden"):
+        run(dataclasses.replace(config, hidden=(32,)), log=lambda text: None)

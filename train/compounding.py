@@ -36,6 +36,7 @@ Each method's run directory is kept under ``out`` for ``demo eval`` and inspecti
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,6 +44,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from demo.errors import DemoError
 from demo.store import EpisodeStore
 from demo.train import checkpoint as ckpt
 from demo.train.bc import TrainConfig, train
@@ -95,6 +97,24 @@ def _episodes_for_budget(pool: EpisodeStore, labels: int) -> int:
     return k
 
 
+# What a size's cached stores and runs depend on; reruns with other values need another --out.
+_CACHE_KEYS = ("task", "seed", "demos", "pool", "rounds", "episodes_per_round", "beta", "gate", "steps", "round_steps",
+               "hidden", "batch_size", "chunk", "binary_gripper", "eval_episodes")
+
+
+def _check_cached_configuration(d: Path, c: CompoundingConfig) -> None:
+    """Reuse ``d`` only if it was made with this configuration (written on first use)."""
+    path = d / "configuration.json"
+    mine = json.loads(json.dumps({k: getattr(c, k) for k in _CACHE_KEYS}))
+    if path.exists():
+        theirs = ckpt.read_json(path)
+        differ = sorted(k for k in _CACHE_KEYS if theirs.get(k) != mine[k])
+        if differ:
+            raise DemoError(d, f"holds runs made with other {', '.join(differ)}; choose another --out")
+    else:
+        ckpt.write_json(path, mine)
+
+
 def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
     from demo.collect.scripted import CollectConfig, collect_scripted
 
@@ -105,6 +125,7 @@ def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, A
     for n in c.blocks:
         d = out / f"{c.task}{n}"
         d.mkdir(exist_ok=True)
+        _check_cached_configuration(d, c)
         pool_path = d / "pool.zarr"
         if not pool_path.exists():
             log(f"[blocks {n}] collecting {c.pool} demonstrations")
