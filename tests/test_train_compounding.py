@@ -35,7 +35,7 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
 
     for method in ("bc", "dagger", "bc_chunk"):
         assert load_bundle(row[method]["run"]).execution.binary == (7,)
-    assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] is None
+    assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] == "deviation:0.05"
     assert "DAgger" in format_table(result)
     # A rerun reuses every stage (stores, runs, evaluations) instead of repeating it.
     again = run(config, log=lambda text: None)
