@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
+from demo.figures import pyplot, save_figure
 
 OBSTACLE_HALF_XY = (0.03, 0.07)  # m, the avoid task's obstacle (demo.sim.avoid.OBSTACLE_HALF)
 
@@ -92,10 +93,7 @@ def summarize(result: dict[str, Any], starts: int) -> dict[str, Any]:
 def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: str | Path, starts_shown: int = 5) -> Path:
     """One row per policy, one column per start state (the first ``starts_shown``, not picked): every
     sampled path from that start, top view, relative to the obstacle, coloured by the side it passes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Rectangle
 
@@ -139,11 +137,7 @@ def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: s
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0.05, 1, 1))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def run(diffusion: str, reference: str, starts: int = 20, samples: int = 3, seed: int = 0, png: str | None = None,

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from demo.curate.curate import ALL_SIGNALS, REASONS, Curation
+from demo.figures import pyplot, save_figure
 
 TARGET = 0.9
 
@@ -186,11 +187,7 @@ def _panels(curation: Curation) -> list[tuple[str, str, list[float], bool]]:
 def plot(curation: Curation, path: str | Path) -> Path:
     """PNG of every signal's distribution (per operator when there are several, else kept vs
     dropped) with the filter thresholds as dashed lines."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     ops = _operators(curation.table)
     names = sorted(set(ops.tolist()))
     if len(names) > 1:
@@ -238,8 +235,4 @@ def plot(curation: Curation, path: str | Path) -> Path:
         f"curation signals: {int(curation.kept.sum())}/{len(curation.kept)} episodes kept (red dashes: thresholds)", y=0.995, fontsize=10
     )
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90)

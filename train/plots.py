@@ -8,14 +8,7 @@ from typing import Any
 
 import numpy as np
 
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from demo.figures import pyplot, save_figure
 
 
 def plot_training(metrics: Mapping[str, Any], path: str | Path, title: str = "") -> Path:
@@ -25,7 +18,7 @@ def plot_training(metrics: Mapping[str, Any], path: str | Path, title: str = "")
     ``[{"step", "success_rate", "ci95"}, ...]`` and optionally ``rounds`` (DAgger round boundaries,
     ``[{"step", "round"}, ...]``) drawn as vertical lines.
     """
-    plt = _pyplot()
+    plt = pyplot()
     evals = list(metrics.get("eval") or [])
     fig, axes = plt.subplots(1, 2 if evals else 1, figsize=(10 if evals else 5.5, 3.8), squeeze=False)
     ax = axes[0, 0]
@@ -57,11 +50,7 @@ def plot_training(metrics: Mapping[str, Any], path: str | Path, title: str = "")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_success_vs(
@@ -76,7 +65,7 @@ def plot_success_vs(
 
     ``lines``: method -> ``[{x_key, "success_rate", "ci95", annotate?}, ...]``.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for name, points in lines.items():
         pts = sorted(points, key=lambda p: p[x_key])
@@ -98,8 +87,4 @@ def plot_success_vs(
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
