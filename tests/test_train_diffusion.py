@@ -17,13 +17,8 @@ H = 8
 RAMP = 0.2 + 0.6 * torch.arange(H) / (H - 1)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    # before the module-scoped training fixture: multi-threaded torch on a busy 2-core machine crawls
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+# before any module-scoped fixture (e.g. a trained policy): it comes first in the closure
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def toy_batch(n: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:

@@ -12,12 +12,7 @@ from demo.bench.infer import run as bench_infer
 from demo.bench.multimodal import classify
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def test_bench_infer_measures_figure_and_reference_in_one_run() -> None:

@@ -12,13 +12,7 @@ from torch.nn import functional as F
 from demo.train.unet1d import LARGE, SMALL, ConditionalUnet1D, count_parameters
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    # multi-threaded torch on a busy 2-core machine crawls
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def small_net(action_dim: int = 3, cond_dim: int = 10, channels=(16, 32, 64)) -> ConditionalUnet1D:
