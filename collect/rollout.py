@@ -31,7 +31,7 @@ class Env(Protocol):  # the part of demo.sim's environment a rollout uses
     horizon: int
 
     def reset(self, seed: int) -> dict[str, np.ndarray]: ...
-    def frame(self) -> dict[str, np.ndarray]: ...
+    def frame(self, obs: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]: ...
     def step(self, action: np.ndarray) -> tuple: ...
     def success(self) -> bool: ...
 
@@ -94,7 +94,7 @@ def rollout(
                 frames.setdefault(key, []).append(np.asarray(value))
         obs, _, success, _, _ = env.step(command.executed)
         steps = t + 1
-        frame = {**obs, "sim.state": env.get_state()}  # = env.frame(), from what step just observed
+        frame = env.frame(obs)
         if success:
             first_success = t + 1 if first_success is None else first_success
             streak_start = t + 1 if streak_start is None else streak_start

@@ -238,9 +238,13 @@ class Env:
             self.cameras.render(self.data, out)
         return out
 
-    def frame(self) -> dict[str, np.ndarray]:
-        """Observations plus ``sim.state`` (what a collector records per frame)."""
-        out = self.observe()
+    def frame(self, obs: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """Observations plus ``sim.state`` (what a collector records per frame).
+
+        ``obs``: the observations of the current state when the caller has them already (what
+        ``step`` just returned), so they are not looked up again.
+        """
+        out = self.observe() if obs is None else dict(obs)
         out["sim.state"] = self.get_state()
         return out
 

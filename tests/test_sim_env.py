@@ -80,6 +80,9 @@ def test_step_contract(pick):
     # holding the home pose, the arm stays put (gravity compensated, stiff servos)
     np.testing.assert_allclose(obs["obs.joint_pos"], hold[:-1], atol=2e-3)
     assert obs["obs.gripper"][0] == pytest.approx(0.0, abs=0.02)
+    # step's observations are the state's: a frame built from them is the frame of that state
+    given, looked_up = pick.frame(obs), pick.frame()
+    assert given.keys() == looked_up.keys() and all(np.array_equal(given[k], looked_up[k]) for k in given)
     with pytest.raises(DemoError, match="expected shape"):
         pick.step(np.zeros(3))
 
