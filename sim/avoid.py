@@ -1,16 +1,26 @@
-"""`avoid`: reach a goal behind an obstacle, passing it on the left or on the right.
+"""`avoid`: reach a goal behind an obstacle, passing it on the left or on the right, without touching it.
 
 Reset: a box obstacle (mocap; 6 x 14 x 24 cm) stands at x 0.44..0.50, |y| <= 0.05 m (base
-frame); the goal (a marker) is behind it (0.16..0.20 m past its centre, z 0.08..0.20 m) and the
-EE starts in front of it at the same heights, gripper pointing down. Going over the obstacle would
-need the TCP above ~0.26 m. Success: EE position within ``tol`` of the goal. Observations:
+frame); the goal (a marker) is behind it (0.18..0.21 m past its centre, z 0.08..0.20 m) and the
+EE starts in front of it (0.16..0.20 m before its centre, so the hand's tip is 3..7 cm from its
+front face) at the same heights, gripper pointing down. Going over the obstacle would need the TCP
+above ~0.26 m. Success: the EE within ``tol`` of the goal and the robot has never touched the
+obstacle (contacts checked after every control step and latched in ``data.userdata``, so the
+latch is part of the MuJoCo state that ``get_state``/``set_state`` carry). Observations:
 ``obs.obstacle_pos`` [3] (obstacle centre), ``obs.goal_pos`` [3] (m, base frame).
 
 Expert: a BIMODAL demonstrator. It draws a side (left = +y, right = -y, 50/50) from its rng at
 construction and heads for it; whenever the EE is clearly beside the obstacle the state decides
 (it carries on along the side it is on). ``mode`` reports the side the EE was last clearly on, or
-the drawn side before that. Waypoints: beside the front corner, beside the rear corner, goal; the IK
-keeps the arm ``collision_min_distance`` away from the obstacle (mink collision avoidance).
+the drawn side before that. Waypoints: beside the front corner, reached sideways while creeping
+forward (``lead`` m per m sideways), beside the rear corner, goal; the IK keeps the arm
+``collision_min_distance`` away from the obstacle (mink collision avoidance).
+
+Why the creep: both sides share the forward part of the first move, so the average of the two
+modes, which an MSE-trained policy regresses to where the data holds both, drives straight at the
+front face (the hand's tip starts 3..7 cm from it). Measured (200 paired demos, 100 eval episodes):
+MSE-BC 1-31% over three seeds, mostly collisions; the same BC trained on the left-side half alone
+92-94%; a diffusion policy 91-94%.
 """
 
 from __future__ import annotations
@@ -31,19 +41,26 @@ if TYPE_CHECKING:
     from demo.sim.env import Env
 
 OBSTACLE_HALF = (0.03, 0.07, 0.12)  # m
+OBSTACLE_X = (0.44, 0.50)  # m, range of the obstacle centre's x
+START_BEFORE = (0.16, 0.20)  # m, range of the start TCP's distance before the obstacle centre
+GOAL_PAST = (0.18, 0.21)  # m, range of the goal's distance past the obstacle centre
+HEIGHT = (0.08, 0.20)  # m, range of the start's and the goal's height
 HAND_REACH = 0.10  # m the built-in hand extends along its long axis from the TCP (clearances)
+TOUCH_SLOT = 0  # index in data.userdata of the "obstacle touched" latch (part of the MuJoCo state)
 
 
 @dataclasses.dataclass
 class AvoidParams(ExpertParams):
-    clearance: float = 0.095  # m from the obstacle's side face to the TCP while passing
-    corner: float = 0.13  # m from the obstacle's front/rear face to the TCP at the corners
+    clearance: float = 0.145  # m from the obstacle's side face to the TCP while passing
+    corner: float = 0.13  # m from the obstacle's rear face to the TCP at the rear corner
+    front: float = 0.055  # m from the obstacle's front face to the TCP at the front corner
+    lead: float = 0.3  # m forward per m sideways on the way to the front corner
     p_left: float = 0.5  # probability of choosing the left (+y) side
 
 
 class AvoidExpert(Expert):
     Params = AvoidParams
-    VARIATIONS = {"clearance": (0.085, 0.12), "corner": (0.12, 0.16)}
+    VARIATIONS = {"clearance": (0.13, 0.16), "corner": (0.12, 0.16), "front": (0.04, 0.07)}
     p: AvoidParams
 
     def _setup(self, env: "Env") -> None:
@@ -75,7 +92,9 @@ class AvoidExpert(Expert):
         elif s * dy > hy + p.clearance - 0.025:
             target = np.array([obs_pos[0] + hx + p.corner, side_y, goal[2]])  # along the side
         else:
-            target = np.array([min(ee[0], obs_pos[0] - hx - p.corner), side_y, goal[2]])  # sidestep first
+            # sideways to the front corner, creeping forward by `lead` m per m still to go sideways
+            x = min(obs_pos[0] - hx - p.front, ee[0] + p.lead * abs(side_y - ee[1]))
+            target = np.array([x, side_y, goal[2]])
         return self.move(env, target, q, 0.0)
 
 
@@ -99,6 +118,7 @@ class Avoid(Task):
             contype=SCENE_CONTYPE,
             conaffinity=SCENE_CONAFFINITY,
         )
+        spec.nuserdata = max(spec.nuserdata, TOUCH_SLOT + 1)
         goal = add_mocap_body(spec, "goal")
         add_marker_geom(goal, mujoco.mjtGeom.mjGEOM_SPHERE, [0.015], [0.1, 0.8, 0.2, 0.5])
 
@@ -106,11 +126,23 @@ class Avoid(Task):
         m = env.model
         self.obstacle_mocap = int(m.body_mocapid[m.body("obstacle").id])
         self.goal_mocap = int(m.body_mocapid[m.body("goal").id])
+        self.obstacle_geom = int(m.geom("obstacle").id)
+
+    def after_step(self, env: "Env") -> None:
+        d = env.data
+        for c in d.contact[: d.ncon]:
+            if self.obstacle_geom in (c.geom1, c.geom2):
+                d.userdata[TOUCH_SLOT] = 1.0
+                return
+
+    def touched(self, env: "Env") -> bool:
+        """Whether the robot has touched the obstacle this episode (latched in ``data.userdata``)."""
+        return bool(env.data.userdata[TOUCH_SLOT] > 0.0)
 
     def reset(self, env: "Env", rng: np.random.Generator) -> None:
-        o = np.array([rng.uniform(0.44, 0.50), rng.uniform(-0.05, 0.05), OBSTACLE_HALF[2]])
-        goal = np.array([o[0] + rng.uniform(0.16, 0.20), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(0.08, 0.20)])
-        start = np.array([o[0] - rng.uniform(0.16, 0.20), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(0.08, 0.20)])
+        o = np.array([rng.uniform(*OBSTACLE_X), rng.uniform(-0.05, 0.05), OBSTACLE_HALF[2]])
+        goal = np.array([o[0] + rng.uniform(*GOAL_PAST), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(*HEIGHT)])
+        start = np.array([o[0] - rng.uniform(*START_BEFORE), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(*HEIGHT)])
         env.set_mocap_pose(self.obstacle_mocap, o)
         env.set_mocap_pose(self.goal_mocap, goal)
         env.place_ee(start, down_quat(env.home_yaw))
@@ -133,4 +165,7 @@ class Avoid(Task):
 
     def success(self, env: "Env") -> bool:
         ee, _ = env.ee_pose()
-        return bool(np.linalg.norm(ee - self.goal(env)) < float(self.options["tol"]))
+        return not self.touched(env) and bool(np.linalg.norm(ee - self.goal(env)) < float(self.options["tol"]))
+
+    def failure(self, env: "Env") -> str | None:
+        return "collision" if self.touched(env) else None

@@ -181,6 +181,7 @@ class Env:
         d.ctrl[self.grip_act] = self._gripper_ctrl(a[-1])
         np.clip(d.ctrl, self._ctrl_lo, self._ctrl_hi, out=d.ctrl)
         mujoco.mj_step(self.model, d, nstep=self.n_substeps)
+        self.task.after_step(self)
         obs = self.observe()
         ok = self.task.success(self)
         truncated = self.steps >= self.horizon

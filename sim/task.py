@@ -67,8 +67,15 @@ class Task:
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
         """Fill the task's observations into ``out``."""
 
+    def after_step(self, env: "Env") -> None:
+        """Called after every control step: latch events into the simulator state (avoid's touch)."""
+
     def success(self, env: "Env") -> bool:
         raise NotImplementedError
+
+    def failure(self, env: "Env") -> str | None:
+        """Why the episode has failed for good (e.g. avoid's ``"collision"``), None while it has not."""
+        return None
 
 
 @dataclasses.dataclass

@@ -90,3 +90,30 @@ def test_state_decides_once_committed(env):
     assert r_ok
     # a fresh expert (whatever its own draw) agrees once the arm is committed
     assert env.expert(np.random.default_rng(123)).mode == other or abs(env.ee_pose()[0][1] - o[1]) <= OBSTACLE_HALF[1] + 0.02
+
+
+def hold_action(env) -> np.ndarray:
+    """Joint targets that keep the arm where it is, gripper open."""
+    return np.append(env.data.qpos[env.arm_qadr], 0.0)
+
+
+def test_touching_the_obstacle_fails_the_episode_and_the_latch_is_simulator_state(env):
+    env.reset(4)
+    assert not env.task.touched(env)
+    goal = env.task.goal(env)
+    # Bring the obstacle to the hand: a contact, latched by the step.
+    ee = env.ee_pose()[0]
+    env.set_mocap_pose(env.task.obstacle_mocap, np.array([ee[0] + 0.09, ee[1], OBSTACLE_HALF[2]]))
+    env.step(hold_action(env))
+    assert env.task.touched(env)
+    # Put the obstacle back and the goal on the EE: reached, but touched, so no success.
+    env.set_mocap_pose(env.task.obstacle_mocap, np.array([ee[0] + 0.5, ee[1], OBSTACLE_HALF[2]]))
+    env.set_mocap_pose(env.task.goal_mocap, env.ee_pose()[0])
+    _, _, ok, _, _ = env.step(hold_action(env))
+    assert np.linalg.norm(env.ee_pose()[0] - env.task.goal(env)) < 0.02 and not ok
+    # The latch travels with the MuJoCo state and a reset clears it.
+    state = env.get_state()
+    env.reset(4)
+    assert not env.task.touched(env) and np.allclose(env.task.goal(env), goal)
+    env.set_state(state)
+    assert env.task.touched(env) and not env.success()

@@ -97,3 +97,28 @@ def test_wilson_interval() -> None:
     lo, hi = wilson_interval(100, 100)
     assert hi == 1.0 and lo == pytest.approx(0.9630, abs=1e-4)
     assert np.isclose(sum(wilson_interval(3, 7)), 2 * (3 + 1.96**2 / 2) / (7 + 1.96**2), atol=1e-3)
+
+
+class _RamsObstacle:
+    """An actor that holds the arm still after putting the avoid obstacle against the hand."""
+
+    def reset(self, seed: int, env: object = None) -> None:
+        from demo.sim.avoid import OBSTACLE_HALF
+
+        ee = env.ee_pose()[0]
+        env.set_mocap_pose(env.task.obstacle_mocap, np.array([ee[0] + 0.09, ee[1], OBSTACLE_HALF[2]]))
+
+    def act(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        return np.append(frame["obs.joint_pos"], 0.0)
+
+
+def test_a_task_failure_is_its_own_outcome() -> None:
+    from demo.sim import make_env
+    from demo.train.evaluate import run_episode
+
+    env = make_env("avoid")
+    try:
+        outcome = run_episode(env, _RamsObstacle(), 0, 7, max_steps=5)
+    finally:
+        env.close()
+    assert not outcome.success and outcome.outcome == "collision"

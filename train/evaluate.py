@@ -9,6 +9,7 @@ horizon, or once success has held for 0.5 s. Outcomes:
 - ``success``: the success predicate holds at the end;
 - ``timeout``: it never held before the horizon;
 - ``lost``: it held at some point but not at the end (e.g. a lifted cube dropped);
+- the task's own reason where it has failed for good (``Task.failure``: avoid's ``collision``);
 - ``error``: the policy produced a non-finite action or the simulation failed.
 
 Evaluation is deterministic for a seed, whatever ``--workers``: every episode's state depends only
@@ -61,7 +62,7 @@ class EpisodeOutcome:
     success: bool
     length: int  # control steps
     first_success_step: int | None
-    outcome: str  # success | timeout | lost | error
+    outcome: str  # success | timeout | lost | error | the task's failure (e.g. collision)
     error: str = ""
     states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
 
@@ -143,8 +144,11 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
         return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
     if _diverged(env):
         return EpisodeOutcome(index, seed, False, episode.length, None, "error", "simulation became unstable")
+    failure = env.task.failure(env)
     if episode.success:
         outcome = "success"
+    elif failure:
+        outcome = failure
     elif episode.first_success_step is not None:
         outcome = "lost"
     else:
