@@ -117,3 +117,12 @@ def test_touching_the_obstacle_fails_the_episode_and_the_latch_is_simulator_stat
     assert not env.task.touched(env) and np.allclose(env.task.goal(env), goal)
     env.set_state(state)
     assert env.task.touched(env) and not env.success()
+
+
+def test_reset_places_the_ee_before_the_obstacle_even_when_the_way_down_is_blocked(env):
+    # 1205035877: a start whose IK path from home ran onto the obstacle's top (found in collection)
+    for seed in (1205035877, 0, 1, 2):
+        env.reset(seed)
+        rel = env.ee_pose()[0] - env.task.obstacle(env)
+        assert -0.2 - 0.01 <= rel[0] <= -0.16 + 0.01 and abs(rel[1]) <= 0.03 + 0.01, (seed, rel)
+        assert not env.task.touched(env)

@@ -115,8 +115,7 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "chunk": 16,  # horizon
     "n_obs": 2,
     # pick (100 demos): 96%. avoid (200 paired demos, 16000 steps), whose demonstrations pass the
-    # obstacle 2 cm away, needs closed loop more often: execute 4 gives 94%/91% (training seeds 0/1),
-    # execute 8 81%/87%
+    # obstacle 2 cm away: execute 4 gives 94%/93% (training seeds 0/1), execute 8 91%/93%
     "execute": 8,
     # never temporal ensembling: averaging overlapping chunks that went to different modes is the
     # very mode averaging diffusion is there to avoid
@@ -126,7 +125,9 @@ TRAIN_DEFAULTS: dict[str, Any] = {
     "warmup_steps": 500,
     "ema": 0.995,
     "batch_size": 256,
-    "steps": 8000,  # ~12 min of one CPU core; pick reached only 90% after 6000 steps; avoid (200 demos): 80-90% over 4 seeds, hence --steps 16000 there
+    # ~12 min of one CPU core; pick reached only 90% after 6000 steps; avoid (200 demos) reached
+    # 80-90% over 4 seeds, hence --steps 16000 there
+    "steps": 8000,
 }
 
 
