@@ -24,8 +24,6 @@ import numpy as np
 from demo.errors import DemoError
 from demo.figures import pyplot, save_figure
 
-OBSTACLE_HALF_XY = (0.03, 0.07)  # m, the avoid task's obstacle (demo.sim.avoid.OBSTACLE_HALF)
-
 
 def classify(ee: np.ndarray, obstacle: np.ndarray) -> str:
     """Side on which the path ``ee [T, 3]`` passes ``obstacle [3]`` (base frame)."""
@@ -101,7 +99,9 @@ def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: s
     cols = min(starts_shown, 1 + max(e["start"] for e in results[0]["episodes"]))
     fig, axes = plt.subplots(len(results), cols, figsize=(2.6 * cols, 2.9 * len(results)), squeeze=False,
                              sharex=True, sharey=True)
-    hx, hy = OBSTACLE_HALF_XY
+    from demo.sim.avoid import OBSTACLE_HALF
+
+    hx, hy = OBSTACLE_HALF[:2]
     for row, (res, summ) in enumerate(zip(results, summaries)):
         for col in range(cols):
             ax = axes[row, col]

@@ -20,7 +20,8 @@ Why the creep: both sides share the forward part of the first move, so the avera
 modes, which an MSE-trained policy regresses to where the data holds both, drives straight at the
 front face (the hand's tip starts 3..7 cm from it). Measured (200 paired demos, 100 eval episodes):
 MSE-BC 1-15% over three seeds, nearly all collisions; the same BC trained on the left-side half
-alone 79-93%; a diffusion policy 93-94%.
+alone 79-93%; a diffusion policy (16,000 steps) 93-94% re-planning every 4 steps, 91-93% every
+8.
 """
 
 from __future__ import annotations
@@ -146,12 +147,13 @@ class Avoid(Task):
         start = np.array([o[0] - rng.uniform(*START_BEFORE), o[1] + rng.uniform(-0.03, 0.03), rng.uniform(*HEIGHT)])
         env.set_mocap_pose(self.obstacle_mocap, o)
         env.set_mocap_pose(self.goal_mocap, goal)
-        env.place_ee(start, down_quat(env.home_yaw))
+        down = down_quat(env.home_yaw)
+        env.place_ee(start, down)
         if np.linalg.norm(env.ee_pose()[0] - start) > PLACE_TOL:
             # The IK's way down from home ran onto the obstacle's top: place the arm with the
             # obstacle out of the way, then put it back.
             env.set_mocap_pose(self.obstacle_mocap, o - np.array([0.0, 0.0, 1.0]))
-            env.place_ee(start, down_quat(env.home_yaw))
+            env.place_ee(start, down)
             env.set_mocap_pose(self.obstacle_mocap, o)
 
     def obstacle(self, env: "Env") -> np.ndarray:
