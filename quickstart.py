@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from demo.errors import DemoError
+from demo.progress import Progress
 
 
 @dataclass
@@ -28,7 +29,7 @@ class QuickstartConfig:
     task: str = "pick"
     expert_episodes: int = 100
     poor_episodes: int = 20  # mixed in so that curation has something to find
-    steps: int = 5000  # BC gradient steps
+    steps: int | None = None  # BC gradient steps (None: BC's default, demo.train.config.for_policy)
     eval_episodes: int = 50
     workers: int = 2
     seed: int = 0
@@ -38,13 +39,15 @@ Stage = Callable[[], dict[str, Any]]
 
 
 def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float], None] | None = None,
-        overwrite: bool = False) -> dict[str, Any]:
-    """Run every stage; ``on_stage(name, result, seconds)`` after each. Returns all results."""
+        overwrite: bool = False, progress: Progress | None = None) -> dict[str, Any]:
+    """Run every stage; ``on_stage(name, result, seconds)`` after each, ``progress`` within each
+    (the stages' own ticks). Returns all results."""
     from demo.collect.scripted import CollectConfig, collect_scripted
     from demo.convert.check import round_trip
     from demo.convert.convert import ConvertOptions, convert_store
     from demo.curate.curate import curate
-    from demo.train.bc import TrainConfig, train
+    from demo.train.bc import train
+    from demo.train.config import for_policy
     from demo.train.evaluate import EvalConfig, evaluate
 
     out = Path(config.out)
@@ -58,17 +61,18 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
         for operator, n in (("expert", config.expert_episodes), ("poor", config.poor_episodes)):
             if n > 0:
                 c = CollectConfig(task=config.task, episodes=n, seed=config.seed, operator=operator)
-                r = collect_scripted(c, demos, workers=config.workers, append=demos.exists(), overwrite=overwrite)
+                r = collect_scripted(c, demos, workers=config.workers, append=demos.exists(), overwrite=overwrite,
+                                     progress=progress)
                 results.append({"operator": operator, "episodes": r.episodes, "success_rate": r.success_rate})
         return {"store": str(demos), "by_operator": results}
 
     def curate_stage() -> dict[str, Any]:
-        result = curate(demos, curated, overwrite=overwrite)
+        result = curate(demos, curated, overwrite=overwrite, progress=progress)
         return {"store": str(curated), "kept": int(result.kept.sum()), "episodes": int(len(result.kept))}
 
     def convert_stage() -> dict[str, Any]:
         opts = ConvertOptions(to="ee7")
-        converted = convert_store(curated, ee7, opts, overwrite=overwrite)
+        converted = convert_store(curated, ee7, opts, overwrite=overwrite, progress=progress)
         trip = round_trip(curated, opts)
         return {
             "store": str(ee7),
@@ -79,14 +83,13 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
         }
 
     def train_stage() -> dict[str, Any]:
-        tc = TrainConfig(data=str(curated), out=str(run_dir), algo="bc", seed=config.seed, steps=config.steps,
-                         chunk=16, ensemble=0.01)
-        summary = train(tc, overwrite=True, command="demo quickstart")
+        tc = for_policy("bc", data=str(curated), out=str(run_dir), seed=config.seed, steps=config.steps)
+        summary = train(tc, overwrite=True, command="demo quickstart", progress=progress)
         return {"run": str(run_dir), "steps": config.steps, **{k: v for k, v in summary.items() if k != "out"}}
 
     def eval_stage() -> dict[str, Any]:
         ec = EvalConfig(run=str(run_dir), episodes=config.eval_episodes, seed=config.seed, workers=config.workers)
-        return evaluate(ec)
+        return evaluate(ec, progress=progress)
 
     results: dict[str, Any] = {"config": asdict(config)}
     for name, stage in [("collect", collect), ("curate", curate_stage), ("convert", convert_stage),

@@ -61,18 +61,18 @@ def raw_physics_rate(config: CollectConfig, seconds: float, episodes: int = 8) -
 
 
 def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict[str, float]:
-    stamps: list[tuple[float, int]] = []
+    stamps: list[tuple[float, int]] = []  # (time, frames committed so far) after each episode
     start = time.perf_counter()
     result = collect_scripted(
         config,
         workdir / f"w{workers}.zarr",
         workers=workers,
         overwrite=True,
-        on_episode=lambda i, info, n: stamps.append((time.perf_counter(), n)),
+        progress=lambda tick: stamps.append((time.perf_counter(), tick.fields["frames"])) if tick.done else None,
     )
     total = time.perf_counter() - start
     first_t = stamps[0][0]
-    steady_frames = sum(n for _, n in stamps[1:])
+    steady_frames = stamps[-1][1] - stamps[0][1]
     steady_s = stamps[-1][0] - first_t
     return {
         "workers": workers,

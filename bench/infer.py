@@ -95,8 +95,8 @@ def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_d
 
 def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -> dict[str, Any]:
     """Success of the bundle's policy as configured now, on ``demo eval``'s episodes for ``seed``."""
+    from demo.seeds import eval_seeds
     from demo.train.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
-    from demo.train.seeds import eval_seeds
 
     task, options, robot = resolve_target(bundle, None, None, None)
     env = make_eval_env(bundle, task, options, robot)

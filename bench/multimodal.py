@@ -1,6 +1,6 @@
 """`demo bench multimodal`: end-effector paths of two policies from the same start states (task ``avoid``).
 
-For each of ``starts`` start states (``demo eval``'s seed stream, :func:`demo.train.seeds.eval_seeds`),
+For each of ``starts`` start states (``demo eval``'s seed stream, :func:`demo.seeds.eval_seeds`),
 each policy runs ``samples`` episodes that differ only in the seed of the policy's own sampling
 (the diffusion policy's start noise; an MSE policy is deterministic and repeats itself). Every
 episode is classified by the side on which the end-effector passes the obstacle: ``left`` (+y of
@@ -9,7 +9,7 @@ the obstacle centre, base frame) or ``right``, taken where the EE crosses the ob
 policy; the JSON has success and mode counts per policy and how many start states saw both modes.
 
 Figure: the diffusion run's success and mode coverage; reference, same run and start states: the
-MSE-BC run. The rollouts are the shared ones (:func:`demo.collect.rollout.rollout` through
+MSE-BC run. The rollouts are the shared ones (:func:`demo.sim.rollout.rollout` through
 :class:`demo.train.actor.PolicyActor`, torch on one thread), so success here is ``demo eval``'s
 success on these start states.
 """
@@ -34,10 +34,10 @@ def classify(ee: np.ndarray, obstacle: np.ndarray) -> str:
 
 
 def rollouts(run: str, starts: int, samples: int, seed: int, execute: int | None = None) -> dict[str, Any]:
-    from demo.collect.rollout import StepCommand, rollout
+    from demo.seeds import eval_seeds
+    from demo.sim.rollout import StepCommand, rollout
     from demo.train.checkpoint import load_bundle
     from demo.train.evaluate import execution_for, make_actor, make_eval_env, resolve_target, single_thread
-    from demo.train.seeds import eval_seeds
 
     bundle = load_bundle(run)
     task, options, robot = resolve_target(bundle, None, None, None)

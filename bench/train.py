@@ -1,8 +1,8 @@
 """`demo bench train`: behaviour-cloning training throughput, data pipeline included.
 
 Figure: samples/s of BC training exactly as ``demo train --algo bc`` runs it: windows sampled from the
-store's frames in memory (:class:`demo.train.bc.BatchSource`: WindowSampler gather, relative actions,
-normalisation, tensors) and one optimiser step (:func:`demo.train.bc.train_step`: forward, MSE,
+store's frames in memory (:class:`demo.train.data.Windows`: WindowSampler gather, relative actions,
+normalisation, tensors) and one optimiser step (:func:`demo.train.optim.train_step`: forward, MSE,
 backward, gradient clipping, fused AdamW). Reference, same run, same model: the bare forward +
 backward (no optimiser step) on batches that are already tensors in memory (64 distinct batches,
 cycled: one batch repeated is overfitted within seconds, its gradients shrink into denormal floats
@@ -27,7 +27,9 @@ import torch
 from demo.bench.common import machine, rate
 from demo.bench.load import build_store
 from demo.store import EpisodeStore
-from demo.train import bc
+from demo.train.config import for_policy
+from demo.train.data import prepare
+from demo.train.optim import make_learner, train_step
 from demo.train.policy import build_policy
 
 TARGET_RATIO = 0.8
@@ -51,18 +53,18 @@ def run(
         path = Path(data) if data else Path(tmp) / "bench.zarr"
         if data is None:
             build_store(path, frames, 200, 40, seed).close()
-        config = bc.TrainConfig(data=str(path), out=str(Path(tmp) / "run"), seed=seed, batch_size=batch_size,
-                                chunk=chunk, n_obs=n_obs, policy={"hidden": hidden}, include_failures=True)
+        config = for_policy("bc", data=str(path), out=str(Path(tmp) / "run"), seed=seed, batch_size=batch_size,
+                            chunk=chunk, n_obs=n_obs, policy={"hidden": hidden}, include_failures=True)
         t0 = time.perf_counter()
         with EpisodeStore.open(path) as store:
-            s = bc.setup(config, store)
+            data = prepare(config, store)
         setup_s = time.perf_counter() - t0
-    source = bc.BatchSource(s.data, s.data.train_episodes, n_obs, chunk)
-    learner = bc.make_learner(build_policy("bc", s.spec, {"hidden": hidden}), config)
+    source = data.windows(data.train_episodes)
+    learner = make_learner(build_policy("bc", data.spec, {"hidden": hidden}), config)
     rng = np.random.default_rng(seed)
 
     def pipeline_step() -> None:
-        bc.train_step(learner, *source.sample(batch_size, rng))
+        train_step(learner, *source.sample(batch_size, rng))
 
     # Distinct batches, cycled: one batch repeated is overfitted within seconds, its gradients
     # shrink into denormal floats and the reference step slows down for no reason of its own.
@@ -70,7 +72,7 @@ def run(
     turn = iter(range(10**12))
 
     def in_memory_step() -> None:
-        bc.train_step(learner, *batches[next(turn) % len(batches)])
+        train_step(learner, *batches[next(turn) % len(batches)])
 
     policy = learner.policy
 
@@ -90,9 +92,9 @@ def run(
     return {
         "benchmark": "train",
         "data": str(data) if data else f"synthetic store, {frames} frames, 40-dim obs, 8-dim actions",
-        "frames": int(len(s.data.obs)),
+        "frames": int(len(data.obs)),
         "model": {"algo": "bc", "hidden": list(hidden), "parameters": sum(p.numel() for p in policy.parameters()),
-                  "obs_dim": s.spec.obs_dim, "action_dim": s.spec.action_dim, "n_obs": n_obs, "chunk": chunk},
+                  "obs_dim": data.spec.obs_dim, "action_dim": data.spec.action_dim, "n_obs": n_obs, "chunk": chunk},
         "batch": batch_size,
         "torch_threads": torch.get_num_threads(),
         "setup_s": setup_s,

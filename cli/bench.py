@@ -1,7 +1,8 @@
 """`demo bench <name>`: benchmarks written as JSON, each with its reference measured in the same run.
 
 Each benchmark is a library function in ``demo.bench.<name>`` returning a JSON-able dict; this
-module only registers the subcommands.
+module only registers the subcommands. The JSON goes to stdout by default (``--json -``), the
+table to stderr; ``--json FILE`` writes the file and prints the table on stdout.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import typer
 
 from demo.cli.main import app
+from demo.cli.options import json_option
 
 bench_app = typer.Typer(help="Benchmarks written as JSON (figure and reference from the same run).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
@@ -16,58 +18,54 @@ app.add_typer(bench_app, name="bench")
 
 @bench_app.command("load")
 def bench_load(
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    json_out: str = json_option(default="-"),
     frames: int = typer.Option(1_000_000, help="Frames in the synthetic store."),
-    seconds: float = typer.Option(3.0, help="Timing budget per measurement."),
-    seed: int = typer.Option(0),
+    seconds: float = typer.Option(3.0, help="Timing budget per measurement (s)."),
+    seed: int = typer.Option(0, help="Seed of the synthetic store and the sampled windows."),
 ) -> None:
     """Window-sampling samples/s (batch 256, n_obs 2, H 16) vs a raw memory copy of the same bytes."""
     from demo.bench.load import run
-    from demo.cli.output import console, table, write_json
+    from demo.cli.output import kv_table, report_console, write_json
 
     result = run(frames=frames, seconds=seconds, seed=seed)
-    if json_out != "-":
-        console.print(
-            table(
-                "bench load",
-                ["figure", "value"],
-                [
-                    ("window samples/s", result["samples_per_s"]),
-                    ("raw copy samples/s (reference)", result["reference_samples_per_s"]),
-                    ("ratio", result["ratio_to_reference"]),
-                    ("target", f">= {result['target_samples_per_s']}: {'met' if result['meets_target'] else 'NOT met'}"),
-                ],
-            )
+    report_console(json_out).print(
+        kv_table(
+            "bench load",
+            [
+                ("window samples/s", result["samples_per_s"]),
+                ("raw copy samples/s (reference)", result["reference_samples_per_s"]),
+                ("ratio", result["ratio_to_reference"]),
+                ("target", f">= {result['target_samples_per_s']}: {'met' if result['meets_target'] else 'NOT met'}"),
+            ],
         )
+    )
     write_json(result, json_out)
 
 
 @bench_app.command("collect")
 def bench_collect(
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
-    task: str = typer.Option("pick"),
+    json_out: str = json_option(default="-"),
+    task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
     episodes: int = typer.Option(120, help="Episodes per measurement."),
-    seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference."),
-    seed: int = typer.Option(0),
+    seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference (s)."),
+    seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
     rounds: int = typer.Option(2, min=1, help="Rounds of reference + 1 worker + 2 workers; best of each is reported."),
 ) -> None:
     """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene."""
     from demo.bench.collect import run
-    from demo.cli.output import console, table, write_json
+    from demo.cli.output import kv_table, report_console, write_json
 
     r = run(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds)
-    if json_out != "-":
-        console.print(
-            table(
-                f"bench collect ({task})",
-                ["figure", "value"],
-                [
-                    ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
-                    ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
-                    ("collection frames/s, 2 workers", r["two_workers"]["frames_per_s"]),
-                    ("ratio to physics (target >= 0.5)", r["ratio_to_physics"]),
-                    ("2-worker speed-up (target >= 1.7)", r["two_worker_speedup"]),
-                ],
-            )
+    report_console(json_out).print(
+        kv_table(
+            f"bench collect ({task})",
+            [
+                ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
+                ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
+                ("collection frames/s, 2 workers", r["two_workers"]["frames_per_s"]),
+                ("ratio to physics (target >= 0.5)", r["ratio_to_physics"]),
+                ("2-worker speed-up (target >= 1.7)", r["two_worker_speedup"]),
+            ],
         )
+    )
     write_json(r, json_out)

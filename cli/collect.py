@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from demo.cli.main import app
-from demo.cli.output import console, err_console, table, write_json
+from demo.cli.options import json_option, overwrite_option, robot_option
+from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.progress import bars
 from demo.errors import DemoError
 
 SOURCES = ("scripted", "kinesthetic", "vr")
@@ -30,27 +30,31 @@ def task_options(blocks: int | None) -> dict:
 
 @app.command()
 def collect(
-    out: Path = typer.Option(..., "--out", "-o", help="Store directory to write (e.g. pick.zarr)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="STORE", help="Store directory to write (e.g. pick.zarr)."),
     source: str = typer.Option("scripted", help=f"Where demonstrations come from: {', '.join(SOURCES)}."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
-    episodes: int = typer.Option(50, help="Number of episodes."),
+    episodes: int = typer.Option(50, help="Number of episodes (scripted; human sources record every input episode)."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states (and of all noise)."),
     workers: int = typer.Option(1, help="Simulation processes feeding this (writer) process; 0 = all in this process."),
     noise: float = typer.Option(0.0, help="DART noise: std (rad) added to executed joint targets; labels stay clean."),
     operator: str = typer.Option(
-        None, help="scripted: simulated operator profile expert|good|okay|poor (default expert); human sources: a name."
+        None, help="scripted: simulated operator profile expert|good|okay|poor; human sources: a name.",
+        show_default="expert; human sources: the input's, else human",
     ),
-    input: Path = typer.Option(None, "--input", help="kinesthetic: JOINTS.csv; vr: POSES.jsonl (see README)."),
-    calib: Path = typer.Option(None, help="vr: tracker->base calibration JSON (default: align the first pose to the EE)."),
+    input: Path = typer.Option(None, "--input", metavar="FILE", help="kinesthetic: JOINTS.csv; vr: POSES.jsonl (see README).",
+                               show_default="none"),
+    calib: Path = typer.Option(None, metavar="JSON", help="vr: tracker->base calibration JSON.",
+                               show_default="align the first pose to the EE"),
     scale: float = typer.Option(1.0, help="vr: robot motion per hand motion."),
     ik: str = typer.Option("mink", help="vr: IK backend, mink or placo."),
     smoothing: float = typer.Option(2.0, help="vr: jitter filter cutoff in Hz (0 = off)."),
-    robot: Path = typer.Option(None, help="Robot config TOML (default: the built-in arm)."),
-    blocks: int = typer.Option(None, help="stack: number of cubes to stack."),
-    camera: list[str] = typer.Option([], help="Record camera images, NAME@WxH (repeatable)."),
-    append: bool = typer.Option(False, help="Append to an existing store of the same task and robot."),
-    overwrite: bool = typer.Option(False, help="Replace an existing store at --out."),
-    json_out: str = typer.Option(None, "--json", help="Write the run summary as JSON ('-' for stdout)."),
+    robot: Path = robot_option(),
+    blocks: int = typer.Option(None, help="stack: number of cubes to stack.", show_default="the task's default"),
+    camera: list[str] = typer.Option([], metavar="NAME@WxH", help="Record camera images, e.g. front@128x128 (repeatable).",
+                                     show_default="none"),
+    append: bool = typer.Option(False, "--append", help="Append to an existing store of the same task and robot."),
+    overwrite: bool = overwrite_option("an existing store at --out"),
+    json_out: str = json_option("the run summary"),
 ) -> None:
     """Record demonstrations (scripted experts; kinesthetic and VR-style input files)."""
     if source not in SOURCES:
@@ -61,41 +65,19 @@ def collect(
             raise DemoError("--input", f"--source {source} needs an input file (--input)")
         if workers > 1 or noise > 0:
             raise DemoError("--source", f"{source} replays recorded input: --workers > 1 and --noise do not apply")
-    done = {"ok": 0, "n": 0, "frames": 0}
-    start = time.perf_counter()
-    progress = Progress(
-        TextColumn(f"[bold]collect {task}[/]"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("success {task.fields[success]}"),
-        TextColumn("{task.fields[fps]} frames/s"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=err_console if json_out == "-" else console,  # stdout carries only the JSON then
-        transient=False,
-    )
-    with progress:
-        bar = progress.add_task("episodes", total=episodes if source == "scripted" else None, success="-", fps="-")
-
-        def on_episode(index: int, info: dict, length: int) -> None:
-            done["n"] += 1
-            done["ok"] += int(info["success"])
-            done["frames"] += length
-            rate = done["frames"] / max(1e-9, time.perf_counter() - start)
-            progress.update(bar, advance=1, success=f"{done['ok']}/{done['n']}", fps=f"{rate:,.0f}")
-
-        robot_config = str(robot) if robot else None
-        options = task_options(blocks)
+    robot_config = str(robot) if robot else None
+    options = task_options(blocks)
+    with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":
             from demo.collect.scripted import CollectConfig, collect_scripted
 
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
                                    robot=robot_config, task_options=options, cameras=cameras)
             result = collect_scripted(config, out, workers=workers, append=append, overwrite=overwrite,
-                                      on_episode=on_episode)
+                                      progress=progress)
         else:
             human = dict(operator=operator, robot=robot_config, task_options=options, cameras=cameras, append=append,
-                         overwrite=overwrite, on_episode=on_episode, on_start=lambda n: progress.update(bar, total=n))
+                         overwrite=overwrite, progress=progress)
             if source == "vr":
                 from demo.collect.vr import collect_vr
 
@@ -128,6 +110,5 @@ def collect(
         rows.append(("unreachable frames (flagged)", unreachable))
     if result.modes:
         rows.append(("modes", ", ".join(f"{k}: {v}" for k, v in sorted(result.modes.items()))))
-    if json_out != "-":
-        console.print(table("collected", ["", ""], rows))
+    report_console(json_out).print(kv_table("collected", rows))
     write_json(summary, json_out)

@@ -1,4 +1,4 @@
-"""`demo convert IN --to REPR`: actions in another representation (new store, replay check,
+"""`demo convert STORE --to REPR`: actions in another representation (new store, replay check,
 round trip). Also registers `demo bench convert`."""
 
 from __future__ import annotations
@@ -7,36 +7,35 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.console import Console
 
 from demo.cli.bench import bench_app
 from demo.cli.main import app
-from demo.cli.output import console, table, write_json
+from demo.cli.options import json_option, mask_option, overwrite_option, robot_option, store_argument
+from demo.cli.output import kv_table, report_console, table, write_json
+from demo.cli.progress import bars
 from demo.errors import DemoError
-
-
-def _progress(label: str, show: bool) -> Progress:
-    return Progress(TextColumn(f"[bold]{label}[/]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, transient=True, disable=not show)
-
-
-def _selection(n: int | None, total: int) -> Any:
-    return None if n is None else list(range(min(n, total)))
+from demo.progress import Progress
 
 
 @app.command()
 def convert(
-    source: Path = typer.Argument(..., help="Store whose actions to convert (never modified)."),
+    source: Path = store_argument("Store whose actions to convert (never modified)."),
     to: str = typer.Option(..., "--to", help="Target representation: joint_pos, joint_vel, ee_abs, ee_delta, ee7."),
-    out: Path = typer.Option(None, "--out", "-o", help="Write the converted store here."),
-    rotation: str = typer.Option(None, "--rotation", help="Rotation form: euler, rotvec, rot6d (ee_abs also quat)."),
-    delta_frame: str = typer.Option(None, "--delta-frame", help="ee_delta: compose deltas in the 'base' or 'ee' frame."),
-    robot: Path = typer.Option(None, "--robot", help="Robot config TOML to use instead of the one the store names."),
+    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the converted store here.",
+                             show_default="none: only --check / --round-trip"),
+    rotation: str = typer.Option(None, "--rotation", help="Rotation form: euler, rotvec, rot6d (ee_abs also quat).",
+                                 show_default="the representation's own"),
+    delta_frame: str = typer.Option(None, "--delta-frame", help="ee_delta: compose deltas in the 'base' or 'ee' frame.",
+                                    show_default="the representation's own"),
+    robot: Path = robot_option("Robot config TOML to use instead of the one the store names.", "the store's robot"),
     check: bool = typer.Option(False, "--check", help="Replay original and converted actions in the simulator."),
     round_trip_: bool = typer.Option(False, "--round-trip", help="Convert there and back twice; report the EE error."),
-    episodes: int = typer.Option(None, "--episodes", help="--check/--round-trip: only the first N episodes."),
-    json_out: str = typer.Option(None, "--json", help="Write the results as JSON ('-' for stdout)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out store."),
+    mask: str = mask_option("--check/--round-trip: only the episodes of this store mask."),
+    episodes: int = typer.Option(None, "--episodes", help="--check/--round-trip: at most this many episodes (the first).",
+                                 show_default="all"),
+    json_out: str = json_option(),
+    overwrite: bool = overwrite_option("an existing --out store"),
 ) -> None:
     """Re-express actions in another representation (ee7, ee_abs, joint_pos, ...)."""
     from demo.convert.convert import ConvertOptions
@@ -45,29 +44,38 @@ def convert(
     get_representation(to)
     if out is None and not check and not round_trip_:
         raise DemoError("--out", "say where to write the converted store (or run --check / --round-trip)")
+    if episodes is not None and episodes < 1:
+        raise DemoError("--episodes", f"must be at least 1, got {episodes}")
     opts = ConvertOptions(to=to, rotation=rotation, delta_frame=delta_frame, robot=str(robot) if robot else None)
+    selection = _selection(source, mask, episodes)
+    shown = report_console(json_out)
     results: dict[str, Any] = {}
-    show = json_out != "-"  # JSON on stdout: no tables or progress there
-    if out is not None:
-        results["convert"] = _run_convert(source, out, opts, overwrite, show)
-    if round_trip_:
-        results["round_trip"] = _run_round_trip(source, opts, episodes, show)
-    if check:
-        results["check"] = _run_check(source, opts, episodes, show)
-    if json_out:
-        write_json(results, json_out)
+    with bars() as progress:
+        if out is not None:
+            results["convert"] = _run_convert(source, out, opts, overwrite, progress, shown)
+        if round_trip_:
+            results["round_trip"] = _run_round_trip(source, opts, selection, progress, shown)
+        if check:
+            results["check"] = _run_check(source, opts, selection, progress, shown)
+    write_json(results, json_out)
 
 
-def _run_convert(source: Path, out: Path, opts: Any, overwrite: bool, show: bool) -> dict[str, Any]:
-    from demo.convert.convert import convert_store
+def _selection(source: Path, mask: str | None, episodes: int | None) -> Any:
+    """The episodes --check/--round-trip read: the mask's (or all), then at most ``episodes`` of them."""
     from demo.store import EpisodeStore
 
+    if mask is None and episodes is None:
+        return None
     with EpisodeStore.open(source) as store:
-        total = store.num_frames
-    with _progress(f"convert -> {opts.to}", show) as progress:
-        bar = progress.add_task("frames", total=total)
-        result = convert_store(source, out, opts, overwrite=overwrite,
-                               on_progress=lambda e, f: progress.update(bar, completed=f))
+        chosen = store.select(mask)
+    return chosen if episodes is None else chosen[:episodes]
+
+
+def _run_convert(source: Path, out: Path, opts: Any, overwrite: bool, progress: Progress,
+                 shown: Console) -> dict[str, Any]:
+    from demo.convert.convert import convert_store
+
+    result = convert_store(source, out, opts, overwrite=overwrite, progress=progress)
     rows: list[tuple[str, Any]] = [
         ("store", result.path),
         ("actions", f"{result.source} -> {result.target}"),
@@ -86,23 +94,16 @@ def _run_convert(source: Path, out: Path, opts: Any, overwrite: bool, show: bool
             ("IK error (converged)", f"{ik.max_pos_err:.1e} m, {ik.max_rot_err:.1e} rad"),
         ]
         if ik.failed:
-            shown = "; ".join(f"ep {e}: {v[:5]}{'...' if len(v) > 5 else ''}" for e, v in list(ik.failed.items())[:5])
-            rows.append(("IK not converged", shown))
-    if show:
-        console.print(table("converted", ["", ""], rows))
+            failed = "; ".join(f"ep {e}: {v[:5]}{'...' if len(v) > 5 else ''}" for e, v in list(ik.failed.items())[:5])
+            rows.append(("IK not converged", failed))
+    shown.print(kv_table("converted", rows))
     return result.to_json()
 
 
-def _run_round_trip(source: Path, opts: Any, episodes: int | None, show: bool) -> dict[str, Any]:
+def _run_round_trip(source: Path, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
     from demo.convert.check import round_trip
-    from demo.store import EpisodeStore
 
-    with EpisodeStore.open(source) as store:
-        selection = _selection(episodes, store.num_episodes)
-        n = store.num_episodes if selection is None else len(selection)
-    with _progress("round trip", show) as progress:
-        bar = progress.add_task("episodes", total=n)
-        rt = round_trip(source, opts, episodes=selection, on_episode=lambda i: progress.advance(bar))
+    rt = round_trip(source, opts, episodes=selection, progress=progress)
     ik = rt.ik
     rows = [
         ("chain", f"{rt.source} -> {rt.target} -> {rt.source} -> {rt.target}"),
@@ -113,37 +114,28 @@ def _run_round_trip(source: Path, opts: Any, episodes: int | None, show: bool) -
         ("max |target'' - target|", ", ".join(f"{v:.1e}" for v in rt.max_target_diff)),
         ("FK vs mj_kinematics", f"{rt.fk_vs_mujoco['max_pos_err_m']:.1e} m, {rt.fk_vs_mujoco['max_rot_err_rad']:.1e} rad"),
     ]
-    if show:
-        console.print(table("round trip", ["", ""], rows))
+    shown.print(kv_table("round trip", rows))
     return rt.to_json()
 
 
-def _run_check(source: Path, opts: Any, episodes: int | None, show: bool) -> dict[str, Any]:
+def _run_check(source: Path, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
     from demo.convert.check import replay_check
-    from demo.store import EpisodeStore
 
-    with EpisodeStore.open(source) as store:
-        selection = _selection(episodes, store.num_episodes)
-        n = store.num_episodes if selection is None else len(selection)
-    with _progress("replay check", show) as progress:
-        bar = progress.add_task("episodes", total=n)
-        report = replay_check(source, opts, episodes=selection, on_episode=lambda e: progress.advance(bar))
-    if not show:
-        return report.to_json()
+    report = replay_check(source, opts, episodes=selection, progress=progress)
     rows = [
         (e.episode, e.frames, f"{e.max_pos_err_m:.2e}", f"{e.max_rot_err_rad:.2e}", _yn(e.original_success),
          _yn(e.converted_success), "yes" if e.agree else "[red]no[/]", e.ik_failed_steps)
         for e in report.episodes
     ]
-    console.print(table(f"replay: {report.source} vs {report.target} from recorded states",
-                        ["episode", "frames", "pos err m", "rot err rad", "orig ok", "conv ok", "agree", "IK fails"],
-                        rows))
+    shown.print(table(f"replay: {report.source} vs {report.target} from recorded states",
+                      ["episode", "frames", "pos err m", "rot err rad", "orig ok", "conv ok", "agree", "IK fails"],
+                      rows))
     s = report.summary()
     share = s["converted_success_given_original"]
-    console.print(
+    shown.print(
         f"converted succeed on {s['converted_successes']}/{s['episodes']} episodes; "
         f"on {'-' if share is None else f'{share:.1%}'} of the {s['original_successes']} the originals succeed on; "
-        f"max EE error {s['max_pos_err_m']:.2e} m / {s['max_rot_err_rad']:.2e} rad"
+        f"max EE error {s['max_pos_err_m']:.2e} m / {s['max_rot_err_rad']:.2e} rad", highlight=False
     )
     return report.to_json()
 
@@ -154,9 +146,9 @@ def _yn(v: bool) -> str:
 
 @bench_app.command("convert")
 def bench_convert(
-    json_out: str = typer.Option(None, "--json", help="Write the results as JSON ('-' for stdout)."),
+    json_out: str = json_option(default="-"),
     frames: int = typer.Option(200_000, help="Frames to convert (synthetic joint trajectories of the robot)."),
-    robot: Path = typer.Option(None, "--robot", help="Robot config TOML (default: the built-in arm)."),
+    robot: Path = robot_option(),
     placo_frames: int = typer.Option(20_000, help="Frames for the per-frame placo FK loop (it is slow)."),
     seed: int = typer.Option(0, help="Seed of the synthetic trajectories."),
 ) -> None:
@@ -164,12 +156,11 @@ def bench_convert(
     from demo.bench.convert import run_bench
 
     result = run_bench(frames=frames, robot=str(robot) if robot else None, placo_frames=placo_frames, seed=seed)
-    write_json(result, json_out)
-    if json_out == "-":
-        return
+    shown = report_console(json_out)
     rows = [(k, f"{v['frames_per_s']:,.0f}" if v.get("frames_per_s") else v.get("error", "-"), v.get("note", ""))
             for k, v in result["results"].items()]
-    console.print(table(f"bench convert ({result['frames']:,} frames, {result['cpu']})", ["what", "frames/s", ""], rows))
-    console.print(f"joint_pos -> ee7 vs bare mj_kinematics: {result['ratio_vs_mj_kinematics']:.2f}x; "
-                  f"target >= {result['target_frames_per_s']:,} frames/s: "
-                  f"{'met' if result['target_met'] else 'NOT met'}")
+    shown.print(table(f"bench convert ({result['frames']:,} frames, {result['cpu']})", ["what", "frames/s", "note"], rows))
+    shown.print(f"joint_pos -> ee7 vs bare mj_kinematics: {result['ratio_vs_mj_kinematics']:.2f}x; "
+                f"target >= {result['target_frames_per_s']:,} frames/s: "
+                f"{'met' if result['target_met'] else 'NOT met'}")
+    write_json(result, json_out)

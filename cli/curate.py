@@ -1,4 +1,4 @@
-"""`demo curate IN --out OUT`: drop failed, idle, jerky, inconsistent, duplicate episodes; trim idle.
+"""`demo curate STORE --out STORE`: drop failed, idle, jerky, inconsistent, duplicate episodes; trim idle.
 
 Also registers `demo bench curate`.
 """
@@ -8,10 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.console import Console
 
 from demo.cli.bench import bench_app
 from demo.cli.main import app
-from demo.cli.output import console, table, write_json
+from demo.cli.options import json_option, overwrite_option, store_argument
+from demo.cli.output import kv_table, report_console, table, write_json
+from demo.cli.progress import bars
 from demo.errors import DemoError
 
 OFF = ("off", "none", "no")
@@ -29,22 +32,29 @@ def _threshold(value: str | None, flag: str) -> float | None:
 
 @app.command()
 def curate(
-    source: Path = typer.Argument(..., help="Store to curate (never modified, except by --mask)."),
-    out: Path = typer.Option(None, "--out", "-o", help="Write the kept (trimmed) episodes to this new store."),
-    mask: str = typer.Option(None, "--mask", help="Write score.* columns and mask.NAME (= kept) into the source store."),
-    report: str = typer.Option(None, "--report", help="Write the JSON report here ('-' for stdout)."),
-    plot: Path = typer.Option(None, "--plot", help="Write a PNG of the signal distributions with the thresholds."),
+    source: Path = store_argument("Store to curate (never modified, except by --mask)."),
+    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the kept (trimmed) episodes to this new store.",
+                             show_default="none"),
+    mask: str = typer.Option(None, "--mask", metavar="NAME",
+                             help="Write score.* columns, the drop reasons and mask.NAME (= kept) into the source store.",
+                             show_default="none"),
+    json_out: str = json_option("the report (every episode's decision and reasons)"),
+    plot: Path = typer.Option(None, "--plot", metavar="PNG", help="Write a PNG of the signal distributions with the thresholds.",
+                              show_default="none"),
     drop_failed: bool = typer.Option(True, "--drop-failed/--keep-failed", help="Drop episodes whose success flag is false."),
     trim_idle: bool = typer.Option(True, "--trim-idle/--no-trim-idle", help="Cut idle runs at the start/end of kept episodes."),
     max_idle: str = typer.Option("0.2", help="Max fraction of (trimmed) frames in mid-episode pauses, or 'off'."),
-    max_jerk: str = typer.Option("400", help="Max RMS jerk in range/s^3 (action range-normalised), or 'off'."),
+    max_jerk: str = typer.Option(
+        "400", help="Max jerk of the commanded action trajectory (its 3rd time-derivative, each dimension in its "
+                    "typical range, RMS over non-gripper dimensions, 75th percentile over frames) in range/s^3, or 'off'."
+    ),
     min_consistency: str = typer.Option("0.5", help="Min share of sampled frames agreeing with other episodes, or 'off'."),
     max_novelty: str = typer.Option("off", help="Max mean distance to other episodes' states (normalised obs units), or 'off'."),
     max_length_z: str = typer.Option("3.5", help="Max robust z of log length within the task (too long only), or 'off'."),
     dedupe: bool = typer.Option(True, "--dedupe/--no-dedupe", help="Keep only the first of (near-)duplicate episodes."),
     dedupe_tol: float = typer.Option(0.003, help="Duplicate tolerance: RMS fingerprint difference in typical-range units."),
-    min_time_left: str = typer.Option("off", help="Near-miss: drop successes with less time to the horizon (s)."),
-    min_margin: str = typer.Option("off", help="Near-miss: drop successes with a success margin below this (task units)."),
+    min_time_left: str = typer.Option("off", help="Near-miss: drop successes with less time to the horizon (s), or 'off'."),
+    min_margin: str = typer.Option("off", help="Near-miss: drop successes with a success margin below this (task units), or 'off'."),
     idle_speed: float = typer.Option(0.02, help="Idle when every dimension moves slower than this (range/s)."),
     min_pause: float = typer.Option(0.5, help="Shortest idle run that counts as a pause or an idle start/end (s)."),
     neighbours: int = typer.Option(8, "--neighbours", "-k", help="Nearest frames of other episodes per query frame."),
@@ -53,11 +63,9 @@ def curate(
     ),
     seed: int = typer.Option(0, help="Seed of the query-frame sampling."),
     show: str = typer.Option("auto", help="Episodes in the table: all, dropped, none, auto (all up to 40 episodes)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out store."),
+    overwrite: bool = overwrite_option("an existing --out store"),
 ) -> None:
     """Find and drop failed, idle, jerky, inconsistent and duplicate episodes; trim idle starts/ends."""
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
     from demo.curate import report as rep
     from demo.curate.curate import CurateConfig, curate as run_curate
     from demo.curate.signals.consistency import ConsistencyParams
@@ -84,26 +92,21 @@ def curate(
         duplicates=DuplicateParams(tol=dedupe_tol),
     )
     config.validate()
-    columns = (SpinnerColumn(), TextColumn("curate: {task.description}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
-        task = bar.add_task("open", total=None)
-        curation = run_curate(
-            source, out, mask=mask, config=config, overwrite=overwrite, progress=lambda s: bar.update(task, description=s)
-        )
+    with bars() as progress:
+        curation = run_curate(source, out, mask=mask, config=config, overwrite=overwrite, progress=progress)
     result = rep.build(curation, source=source, out=out, mask=mask)
-    if report:
-        write_json(result, report)
     if plot:
         rep.plot(curation, plot)
-    if report == "-":
-        return
-    _print(result, show)
+    shown = report_console(json_out)
+    _print(shown, result, show)
     written = [f"{out} ({result['summary']['kept']} episodes)" if out else "", f"mask.{mask} in {source}" if mask else ""]
-    written += [str(report) if report else "", str(plot) if plot else ""]
-    console.print("wrote: " + (", ".join(w for w in written if w) or "nothing (analysis only: pass --out or --mask)"))
+    written += [str(json_out) if json_out not in (None, "-") else "", str(plot) if plot else ""]
+    shown.print("wrote: " + (", ".join(w for w in written if w) or "nothing (analysis only: pass --out or --mask)"),
+                highlight=False)
+    write_json(result, json_out)
 
 
-def _print(result: dict, show: str) -> None:
+def _print(shown: Console, result: dict, show: str) -> None:
     s = result["summary"]
     if show == "auto":
         show = "all" if s["episodes"] <= 40 else "dropped"
@@ -111,14 +114,13 @@ def _print(result: dict, show: str) -> None:
 
     rows, left = episode_table_rows(result, show)
     if rows:
-        console.print(table(f"episodes ({show})", ["#", "operator", "success", "frames", "decision", "trim", "reasons"], rows))
+        shown.print(table(f"episodes ({show})", ["#", "operator", "success", "frames", "decision", "trim", "reasons"], rows))
         if left:
-            console.print(f"... and {left} more (see --report)")
+            shown.print(f"... and {left} more (see --json)")
     by_reason = ", ".join(f"{k}: {v}" for k, v in s["dropped_by_reason"].items() if v) or "-"
-    console.print(
-        table(
+    shown.print(
+        kv_table(
             "curation",
-            ["", ""],
             [
                 ("kept", f"{s['kept']} / {s['episodes']} episodes, {s['frames_out']} / {s['frames_in']} frames"),
                 ("dropped", f"{s['dropped']} ({by_reason}; an episode may have several reasons)"),
@@ -128,48 +130,42 @@ def _print(result: dict, show: str) -> None:
     )
     ops = result["operators"]
     if len(ops) > 1 or (ops and ops[0]["operator"] != "(none)"):
-        console.print(
+        shown.print(
             table(
-                "per operator (kept = in the curated subset)",
-                ["operator", "episodes", "failed", "kept", "kept %", "dropped %", "dropped for"],
+                "kept and dropped per operator",
+                ["operator", "episodes", "failed", "kept", "dropped", "dropped for"],
                 [
-                    (r["operator"], r["episodes"], r["failed"], r["kept"], f"{r['kept_share']:.0%}", f"{r['dropped_share']:.0%}",
-                     ", ".join(f"{k} {v}" for k, v in r["dropped_for"].items()))
+                    (r["operator"], r["episodes"], r["failed"], f"{r['kept']} ({r['kept_share']:.0%})",
+                     f"{r['episodes'] - r['kept']} ({r['dropped_share']:.0%})",
+                     ", ".join(f"{k} {v}" for k, v in r["dropped_for"].items()) or "-")
                     for r in ops
                 ],
             )
         )
-    t = result["targets"]
-    if t:
-        parts = [f"{k.replace('_', ' ')} {v:.0%}" for k, v in t.items() if k.endswith("share")]
-        verdict = "[green]met[/]" if t["met"] else "[red]not met[/]"
-        console.print(f"targets (each >= {t['threshold']:.0%}): {', '.join(parts)}: {verdict}")
 
 
 @bench_app.command("curate")
 def bench_curate(
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    json_out: str = json_option(default="-"),
     frames: int = typer.Option(1_000_000, help="Frames in the synthetic store."),
     episode_s: float = typer.Option(10.0, help="Mean episode duration (s at 20 fps)."),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, help="Seed of the synthetic store."),
 ) -> None:
     """Curation frames/s with every signal on, vs reading + normalising the same arrays."""
     from demo.bench.curate import run
 
     r = run(frames=frames, episode_s=episode_s, seed=seed)
-    if json_out != "-":
-        console.print(
-            table(
-                "bench curate",
-                ["figure", "value"],
-                [
-                    ("frames / episodes", f"{r['frames']} / {r['episodes']}"),
-                    ("curation frames/s (all signals)", r["frames_per_s"]),
-                    ("curation seconds", r["seconds"]),
-                    ("reference: read + normalise frames/s", r["reference_frames_per_s"]),
-                    ("ratio to reference", r["ratio_to_reference"]),
-                    ("target", f"<= {r['target_seconds_per_1m']} s per 1M frames: {'met' if r['meets_target'] else 'NOT met'}"),
-                ],
-            )
+    report_console(json_out).print(
+        kv_table(
+            "bench curate",
+            [
+                ("frames / episodes", f"{r['frames']} / {r['episodes']}"),
+                ("curation frames/s (all signals)", r["frames_per_s"]),
+                ("curation seconds", r["seconds"]),
+                ("reference: read + normalise frames/s", r["reference_frames_per_s"]),
+                ("ratio to reference", r["ratio_to_reference"]),
+                ("target", f"<= {r['target_seconds_per_1m']} s per 1M frames: {'met' if r['meets_target'] else 'NOT met'}"),
+            ],
         )
+    )
     write_json(r, json_out)

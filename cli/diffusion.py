@@ -5,25 +5,29 @@ from __future__ import annotations
 import typer
 
 from demo.cli.bench import bench_app
+from demo.cli.options import RUN, json_option
 
 
 @bench_app.command("infer")
 def bench_infer(
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
-    run: str = typer.Option(None, "--run", help="A diffusion run directory (default: a fresh network of --denoiser/--channels/--large)."),
-    denoiser: str = typer.Option("mlp", help="Fresh network: mlp (default, light) | unet (published)."),
+    json_out: str = json_option(default="-"),
+    run: str = typer.Option(None, "--run", metavar=RUN, help="A diffusion run directory.",
+                            show_default="a fresh network of --denoiser/--channels/--large"),
+    denoiser: str = typer.Option("mlp", help="Fresh network: mlp (light) | unet (published)."),
     large: bool = typer.Option(False, "--large", help="The published UNet size (256,512,1024); implies --denoiser unet."),
-    channels: str = typer.Option(None, help="UNet channels, e.g. 64,128,256; implies --denoiser unet."),
-    inference_steps: int = typer.Option(None, "--inference-steps", help="DDIM steps (default: the policy's)."),
+    channels: str = typer.Option(None, help="UNet channels, e.g. 64,128,256; implies --denoiser unet.",
+                                 show_default="the UNet's own"),
+    inference_steps: int = typer.Option(None, "--inference-steps", help="DDIM steps.", show_default="the policy's"),
     threads: int = typer.Option(1, help="Torch threads (demo eval runs policies on 1)."),
-    seconds: float = typer.Option(10.0, help="Timing budget (all figures are timed in turn within it)."),
-    episodes: int = typer.Option(None, help="With --run: success of both samplers on demo eval's episodes [100; 0 = skip]."),
+    seconds: float = typer.Option(10.0, help="Timing budget in s (all figures are timed in turn within it)."),
+    episodes: int = typer.Option(None, help="With --run: success of both samplers on this many demo eval episodes (0 = skip).",
+                                 show_default="100 with --run, else 0"),
     seed: int = typer.Option(0, help="Evaluation seed (as demo eval --seed)."),
-    execute: int = typer.Option(None, help="With --episodes: actions executed per chunk (default: the run's)."),
+    execute: int = typer.Option(None, help="With --episodes: actions executed per chunk.", show_default="the run's"),
 ) -> None:
     """Milliseconds per action chunk (batch 1, CPU): DDIM fast path vs DDPM-100 eager (same network)."""
     from demo.bench.infer import run as run_bench
-    from demo.cli.output import console, table, write_json
+    from demo.cli.output import report_console, table, write_json
     from demo.errors import DemoError
 
     try:
@@ -37,54 +41,54 @@ def bench_infer(
                       execute=execute)
     except ValueError as exc:
         raise DemoError("bench infer", str(exc)) from None
-    if json_out != "-":
-        rows = [
-            (r["figure"], r["ms_per_chunk"]),
-            ("same, eager (no tracing)", r["ddim_eager_ms_per_chunk"]),
-            ("DDPM 100 steps, fast path", r["ddpm_fast_path_ms_per_chunk"]),
-            ("reference: " + r["reference"], r["reference_ms_per_chunk"]),
-            ("speed-up vs reference (target >= 8)", f"{r['speedup_vs_reference']:.1f}x"),
-        ]
-        if "success" in r:
-            for name, key in (("success, figure", "success"), ("success, reference (DDPM 100)", "reference_success")):
-                s = r[key]
-                rows.append((f"{name}, execute {s['execute']}", f"{s['successes']}/{s['episodes']} ({s['success_rate']:.1%})"))
-        rows.append(("target <= 15 ms, >= 8x" + (", success within 3 points" if "success" in r else ""),
-                     "met" if r["meets_targets"] else "NOT met"))
-        console.print(
-            table(
-                f"bench infer ({r['denoiser']}, {r['parameters']:,} parameters"
-                + (f", channels {tuple(r['channels'])}" if r["channels"] else "") + f", {r['threads']} thread(s))",
-                ["figure", "ms per chunk"],
-                rows,
-            )
+    rows = [
+        (r["figure"], r["ms_per_chunk"]),
+        ("same, eager (no tracing)", r["ddim_eager_ms_per_chunk"]),
+        ("DDPM 100 steps, fast path", r["ddpm_fast_path_ms_per_chunk"]),
+        ("reference: " + r["reference"], r["reference_ms_per_chunk"]),
+        ("speed-up vs reference (target >= 8)", f"{r['speedup_vs_reference']:.1f}x"),
+    ]
+    if "success" in r:
+        for name, key in (("success, figure", "success"), ("success, reference (DDPM 100)", "reference_success")):
+            s = r[key]
+            rows.append((f"{name}, execute {s['execute']}", f"{s['successes']}/{s['episodes']} ({s['success_rate']:.1%})"))
+    rows.append(("target <= 15 ms, >= 8x" + (", success within 3 points" if "success" in r else ""),
+                 "met" if r["meets_targets"] else "NOT met"))
+    report_console(json_out).print(
+        table(
+            f"bench infer ({r['denoiser']}, {r['parameters']:,} parameters"
+            + (f", channels {tuple(r['channels'])}" if r["channels"] else "") + f", {r['threads']} thread(s))",
+            ["figure", "ms per chunk"],
+            rows,
         )
+    )
     write_json(r, json_out)
 
 
 @bench_app.command("multimodal")
 def bench_multimodal(
-    diffusion: str = typer.Option(..., "--diffusion", help="Diffusion run directory (trained on avoid)."),
-    reference: str = typer.Option(..., "--reference", help="Reference run directory, e.g. MSE-BC on the same data."),
+    diffusion: str = typer.Option(..., "--diffusion", metavar=RUN, help="Diffusion run directory (trained on avoid)."),
+    reference: str = typer.Option(..., "--reference", metavar=RUN, help="Reference run directory, e.g. MSE-BC on the same data."),
     starts: int = typer.Option(20, help="Start states (demo eval's seed stream)."),
     samples: int = typer.Option(3, help="Episodes per start state, each with another policy sampling seed."),
-    seed: int = typer.Option(0),
-    execute: int = typer.Option(None, help="Actions executed per chunk by the diffusion run (default: the run's own)."),
-    reference_execute: int = typer.Option(None, help="Same for the reference run."),
+    seed: int = typer.Option(0, help="Evaluation seed (as demo eval --seed)."),
+    execute: int = typer.Option(None, help="Actions executed per chunk by the diffusion run.", show_default="the run's own"),
+    reference_execute: int = typer.Option(None, help="Actions executed per chunk by the reference run.",
+                                          show_default="the run's own"),
     png: str = typer.Option("multimodal.png", "--png", help="Where to draw the end-effector paths."),
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
+    json_out: str = json_option(default="-"),
 ) -> None:
     """avoid: EE paths of two policies from the same start states, which side they pass, PNG + JSON."""
     from demo.bench.multimodal import run as run_modes
-    from demo.cli.output import console, table, write_json
+    from demo.cli.output import report_console, table, write_json
 
     r = run_modes(diffusion, reference, starts=starts, samples=samples, seed=seed, png=png, execute=execute,
                   reference_execute=reference_execute)
-    if json_out != "-":
-        rows = []
-        for s in (r["figure"], r["reference"]):
-            m = s["modes"]
-            rows.append((f"{s['algo']} (execute {s['execute']})", f"{s['success_rate']:.1%}", m["left"], m["right"], m["none"], f"{s['starts_with_both_modes']}/{starts}"))
-        console.print(table(f"bench multimodal ({starts} starts x {samples} samples) -> {r.get('png')}",
-                            ["policy", "success", "left", "right", "none", "starts with both modes"], rows))
+    rows = []
+    for s in (r["figure"], r["reference"]):
+        m = s["modes"]
+        rows.append((f"{s['algo']} (execute {s['execute']})", f"{s['success_rate']:.1%}", m["left"], m["right"], m["none"],
+                     f"{s['starts_with_both_modes']}/{starts}"))
+    report_console(json_out).print(table(f"bench multimodal ({starts} starts x {samples} samples) -> {r.get('png')}",
+                                         ["policy", "success", "left", "right", "none", "starts with both modes"], rows))
     write_json(r, json_out)

@@ -1,4 +1,4 @@
-"""`demo eval`: roll a trained policy out in the simulator and report success with a 95% interval."""
+"""`demo eval RUN`: roll a trained policy out in the simulator and report success with a 95% interval."""
 
 from __future__ import annotations
 
@@ -7,28 +7,31 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.output import console, table, write_json
+from demo.cli.options import json_option, robot_option, run_argument
+from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.progress import bars
 
 
 @app.command("eval")
 def eval_(
-    run: Path = typer.Argument(..., help="Run directory written by demo train."),
-    task: str = typer.Option(None, help="Task (default and only allowed: the one the policy was trained on)."),
-    blocks: int = typer.Option(None, help="stack: number of cubes (must match training)."),
-    robot: Path = typer.Option(None, help="Robot config TOML (default: the trained robot)."),
+    run: Path = run_argument(),
+    task: str = typer.Option(None, help="Task (only the one the policy was trained on is allowed).",
+                             show_default="the trained task"),
+    blocks: int = typer.Option(None, help="stack: number of cubes (must match training).", show_default="the trained one"),
+    robot: Path = robot_option(default="the trained robot"),
     episodes: int = typer.Option(100, help="Episodes."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes (disjoint from collection seeds)."),
     workers: int = typer.Option(1, help="Parallel worker processes (results do not depend on it)."),
-    execute: int = typer.Option(None, help="Override: actions executed per chunk query."),
-    ensemble: float = typer.Option(None, help="Override: temporal ensembling decay (negative = off)."),
-    video: Path = typer.Option(None, help="Write a GIF (or .mp4 where an encoder is installed) of the first episodes."),
+    execute: int = typer.Option(None, help="Override: actions executed per chunk query.", show_default="the run's"),
+    ensemble: float = typer.Option(None, help="Override: temporal ensembling decay (negative = off).",
+                                   show_default="the run's"),
+    video: Path = typer.Option(None, metavar="FILE", help="Write a GIF (or .mp4 where an encoder is installed) of the first episodes.",
+                               show_default="no video"),
     video_episodes: int = typer.Option(4, help="Episodes in the video (tiled)."),
     video_size: int = typer.Option(128, help="Pixels per episode tile."),
-    json_out: str = typer.Option(None, "--json", help="Write the result as JSON ('-' for stdout)."),
+    json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
     from demo.train.evaluate import EvalConfig, evaluate
 
     config = EvalConfig(
@@ -36,20 +39,8 @@ def eval_(
         robot=str(robot) if robot else None, episodes=episodes, seed=seed, workers=workers, execute=execute,
         ensemble=ensemble, video=str(video) if video else None, video_episodes=video_episodes, video_size=video_size,
     )
-    done = {"n": 0, "ok": 0}
-    progress = Progress(
-        TextColumn(f"[bold]eval {run.name}[/]"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("success {task.fields[success]}"), TimeElapsedColumn(), TimeRemainingColumn(), console=console,
-    )
-    with progress:
-        bar = progress.add_task("episodes", total=episodes, success="-")
-
-        def on_episode(outcome) -> None:
-            done["n"] += 1
-            done["ok"] += int(outcome.success)
-            progress.update(bar, advance=1, success=f"{done['ok']}/{done['n']}")
-
-        result = evaluate(config, on_episode=on_episode)
+    with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
+        result = evaluate(config, progress=progress)
     lo, hi = result["ci95"]
     failures = ", ".join(f"{k}: {v}" for k, v in sorted(result["failures"].items())) or "none"
     rows = [
@@ -64,5 +55,5 @@ def eval_(
     ]
     if "video" in result:
         rows.append(("video", result["video"]["path"]))
-    console.print(table("evaluated", ["", ""], rows))
+    report_console(json_out).print(kv_table("evaluated", rows))
     write_json(result, json_out)

@@ -1,4 +1,4 @@
-"""`demo import IN --format lerobot|robomimic --out STORE`: bring another stack's dataset into a store."""
+"""`demo import DATASET --format lerobot|robomimic --out STORE`: bring another stack's dataset into a store."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ import typer
 
 from demo.cli.export import Format, print_report
 from demo.cli.main import app
-from demo.cli.output import write_json
+from demo.cli.options import json_option, overwrite_option
+from demo.cli.output import report_console, write_json
+from demo.cli.progress import bars
 from demo.errors import DemoError
 
 
@@ -27,24 +29,23 @@ def detect_format(src: Path) -> Format:
 
 @app.command(name="import")
 def import_(
-    src: Path = typer.Argument(..., help="LeRobot v3.0 dataset folder or robomimic .hdf5 file."),
-    out: Path = typer.Option(..., "--out", "-o", help="Store directory to create (e.g. imported.zarr)."),
-    format: Format = typer.Option(None, "--format", "-f", help="lerobot or robomimic (default: detected)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store at --out."),
-    json_out: str = typer.Option(None, "--json", help="Write the report as JSON to this file ('-' for stdout)."),
+    src: Path = typer.Argument(..., metavar="DATASET", help="LeRobot v3.0 dataset folder or robomimic .hdf5 file.",
+                               show_default=False),
+    out: Path = typer.Option(..., "--out", "-o", metavar="STORE", help="Store directory to create (e.g. imported.zarr)."),
+    format: Format = typer.Option(None, "--format", "-f", help="lerobot or robomimic.", show_default="detected"),
+    overwrite: bool = overwrite_option("an existing store at --out"),
+    json_out: str = json_option("the report"),
 ) -> None:
     """Import a LeRobot v3.0 dataset or a robomimic HDF5 file into a new store."""
     format = format or detect_format(src)
-    if format is Format.lerobot:
-        from demo.interop.lerobot import import_lerobot
+    with bars() as progress:
+        if format is Format.lerobot:
+            from demo.interop.lerobot import import_lerobot
 
-        report = import_lerobot(src, out, overwrite=overwrite, progress=True)
-    else:
-        from demo.interop.robomimic import import_robomimic
+            report = import_lerobot(src, out, overwrite=overwrite, progress=progress)
+        else:
+            from demo.interop.robomimic import import_robomimic
 
-        report = import_robomimic(src, out, overwrite=overwrite, progress=True)
-    if json_out == "-":
-        write_json(report.to_json(), "-")
-        return
-    print_report(report)
+            report = import_robomimic(src, out, overwrite=overwrite, progress=progress)
+    print_report(report, report_console(json_out))
     write_json(report.to_json(), json_out)

@@ -1,4 +1,4 @@
-"""`demo info PATH`: what a store holds."""
+"""`demo info STORE`: what a store holds; `--check` reads every frame and says whether it is intact."""
 
 from __future__ import annotations
 
@@ -7,36 +7,40 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.output import console, table, write_json
+from demo.cli.options import json_option, store_argument
+from demo.cli.output import kv_table, report_console, table, write_json
 from demo.errors import DemoError
 from demo.store import EpisodeStore
 
 
 @app.command()
 def info(
-    path: Path = typer.Argument(..., help="Store directory (e.g. pick.zarr)."),
-    json_out: str = typer.Option(None, "--json", help="Write the summary as JSON to this file ('-' for stdout)."),
+    path: Path = store_argument(),
+    json_out: str = json_option("the summary"),
     check: bool = typer.Option(False, "--check", help="Read every frame and verify the per-episode checksums."),
 ) -> None:
     """Episodes, frames, fps, task, robot, action representation, features, success, masks."""
+    from demo.sim.robot_record import describe_robot
+
     with EpisodeStore.open(path) as store:
         s = store.summary()
+        robot_line, robot_error = describe_robot(store.meta.robot, path)
+        s["robot_status"] = {"ok": robot_error is None, "detail": robot_line}
         if check:
             problems = store.verify()
             s["check"] = {"ok": not problems, "problems": problems}
             if problems:
                 raise DemoError(path, f"{len(problems)} damaged episode(s); first: {problems[0]}")
-    if json_out:
-        write_json(s, json_out)
-        if json_out == "-":
-            return
+            if robot_error is not None:
+                raise robot_error
+    shown = report_console(json_out)
     action = s["action"]
     rows = [
         ("episodes", s["episodes"]),
         ("frames", s["frames"]),
         ("fps", s["fps"]),
         ("task", (s["task"] or {}).get("name", "-")),
-        ("robot", (s["robot"] or {}).get("name", "-")),
+        ("robot", robot_line),
         ("action", f"{action['name']} ({action['dim']}-D, frame {action['frame']}): {', '.join(action['names'])}"),
         ("success rate", "-" if s["success_rate"] is None else f"{s['success_rate']:.1%}"),
         ("mean length", "-" if s["mean_length"] is None else f"{s['mean_length']:.1f} frames"),
@@ -44,11 +48,14 @@ def info(
         ("operators", ", ".join(f"{k}: {v}" for k, v in s["operators"].items()) or "-"),
         ("masks", ", ".join(f"{k}: {v} episodes" for k, v in s["masks"].items()) or "-"),
     ]
-    console.print(table(f"{path}", ["", ""], rows))
-    console.print(
+    if check:
+        rows.append(("check", f"ok: every frame of the {s['episodes']} episodes matches its checksum"))
+    shown.print(kv_table(f"{path}", rows))
+    shown.print(
         table(
             "features",
             ["key", "shape", "dtype", "units", "meaning"],
             [(k, tuple(f["shape"]), f["dtype"], f["units"], f["description"]) for k, f in s["features"].items()],
         )
     )
+    write_json(s, json_out)

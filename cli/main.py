@@ -6,8 +6,10 @@ from __future__ import annotations
 import os
 import sys
 import traceback
+from typing import Any
 
 import typer
+import typer.main
 
 from demo import __version__
 from demo.cli.output import err_console
@@ -50,6 +52,23 @@ def _root(
 def _register() -> None:
     # Imported here so `demo --help` stays one import deep per subcommand module.
     from demo.cli import commands  # noqa: F401
+
+
+def commands() -> dict[str, Any]:
+    """Every visible command by its full name (``"bench load"``) -> its click command (tests, docs)."""
+    _register()
+    found: dict[str, Any] = {}
+
+    def walk(command: Any, path: list[str]) -> None:
+        if hasattr(command, "commands"):
+            for name, sub in command.commands.items():
+                if not sub.hidden:
+                    walk(sub, [*path, name])
+        else:
+            found[" ".join(path)] = command
+
+    walk(typer.main.get_command(app), [])
+    return found
 
 
 def main(argv: list[str] | None = None) -> int:

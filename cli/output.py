@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -12,47 +10,25 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from demo import jsonio
+
 console = Console()
 err_console = Console(stderr=True)
 
 
-def to_jsonable(obj: Any) -> Any:
-    """Plain-JSON copy of ``obj`` (numpy scalars and arrays, paths, NaN as null)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return to_jsonable(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def dumps(obj: Any) -> str:
-    return json.dumps(to_jsonable(obj), indent=2)
-
-
 def write_json(obj: Any, path: str | Path | None) -> None:
-    """Write JSON to ``path``; ``"-"`` prints it to stdout. The file is replaced atomically."""
+    """Write JSON to ``path`` (atomically, :func:`demo.jsonio.write_json`); ``"-"`` prints it to
+    stdout; None writes nothing."""
     if path is None:
         return
-    text = dumps(obj)
     if str(path) == "-":
-        print(text)
+        print(jsonio.dumps(obj))
         return
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text + "\n")
-    tmp.replace(path)
+    jsonio.write_json(path, obj)
 
 
 def table(title: str, columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> Table:
+    """A table with a header row of ``columns``."""
     t = Table(title=title, title_justify="left")
     for c in columns:
         t.add_column(c)
@@ -61,7 +37,23 @@ def table(title: str, columns: Sequence[str], rows: Iterable[Sequence[Any]]) -> 
     return t
 
 
+def kv_table(title: str, rows: Iterable[tuple[str, Any]]) -> Table:
+    """A two-column ``name | value`` table without a header row (there is nothing to name)."""
+    t = Table(title=title, title_justify="left", show_header=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for name, value in rows:
+        t.add_row(name, fmt(value))
+    return t
+
+
+def report_console(json_out: str | None) -> Console:
+    """Where a command prints its tables: stderr when ``--json -`` puts the JSON on stdout, else stdout."""
+    return err_console if json_out == "-" else console
+
+
 def fmt(v: Any) -> str:
+    """A table cell or progress field: floats with 4 significant digits, anything else as ``str``."""
     if isinstance(v, (float, np.floating)):
         return f"{v:.4g}"
     return str(v)

@@ -9,18 +9,20 @@ import typer
 
 from demo.cli.bench import bench_app
 from demo.cli.main import app
-from demo.cli.output import console, err_console, table, write_json
+from demo.cli.options import json_option, robot_option
+from demo.cli.output import console, err_console, kv_table, report_console, write_json
 
 
 @app.command()
 def teleop(
     mode: str = typer.Option("vr", help="kinesthetic (drag the backdrivable arm) or vr (move a hand gizmo)."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
-    out: Path = typer.Option(None, "--out", "-o", help="Store to append saved episodes to (created if missing)."),
+    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Store to append saved episodes to (created if missing).",
+                             show_default="none: nothing is saved"),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
     operator: str = typer.Option("human", help="Who demonstrates (the episode table's operator column)."),
     ik: str = typer.Option("mink", help="VR mode IK backend: mink or placo."),
-    robot: Path = typer.Option(None, help="Robot config TOML (default: the built-in arm)."),
+    robot: Path = robot_option(),
     host: str = typer.Option("127.0.0.1", help="Address to listen on (127.0.0.1: this machine only)."),
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one)."),
 ) -> None:
@@ -48,11 +50,11 @@ def teleop(
 
 @bench_app.command("retarget")
 def bench_retarget(
-    json_out: str = typer.Option("-", "--json", help="Write results to this JSON file ('-' for stdout)."),
-    task: str = typer.Option("pick"),
-    seconds: float = typer.Option(2.0, help="Timing budget per measurement."),
+    json_out: str = json_option(default="-"),
+    task: str = typer.Option("pick", help="Task whose scene the hand poses are retargeted in."),
+    seconds: float = typer.Option(2.0, help="Timing budget per measurement (s)."),
     ik: list[str] = typer.Option(["mink", "placo"], help="IK backends to measure (repeatable)."),
-    seed: int = typer.Option(0),
+    seed: int = typer.Option(0, help="Seed of the initial state and the hand path."),
 ) -> None:
     """VR retargeting poses/s on one core vs the bare IK solve, mink and placo."""
     from demo.bench.retarget import run
@@ -63,13 +65,12 @@ def bench_retarget(
         if name not in IK_BACKENDS:
             raise DemoError("--ik", f"unknown IK backend {name!r} (choose from {', '.join(IK_BACKENDS)})")
     r = run(task=task, seconds=seconds, backends=tuple(ik), seed=seed)
-    if json_out != "-":
-        rows = []
-        for name, b in r["backends"].items():
-            rows += [
-                (f"{name}: retargeted poses/s (target >= {r['target_poses_per_s']:.0f})", b["poses_per_s"]),
-                (f"{name}: bare IK solves/s (reference)", b["reference_bare_solves_per_s"]),
-                (f"{name}: one pose costs (bare solves)", b["pose_cost_in_bare_solves"]),
-            ]
-        console.print(table(f"bench retarget ({task})", ["figure", "value"], rows))
+    rows = []
+    for name, b in r["backends"].items():
+        rows += [
+            (f"{name}: retargeted poses/s (target >= {r['target_poses_per_s']:.0f})", b["poses_per_s"]),
+            (f"{name}: bare IK solves/s (reference)", b["reference_bare_solves_per_s"]),
+            (f"{name}: one pose costs (bare solves)", b["pose_cost_in_bare_solves"]),
+        ]
+    report_console(json_out).print(kv_table(f"bench retarget ({task})", rows))
     write_json(r, json_out)

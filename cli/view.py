@@ -1,4 +1,4 @@
-"""`demo view IN [--episode K] [--port P] [--host H]`: replay a store's episodes in the browser."""
+"""`demo view STORE [--episode K] [--port P] [--host H]`: replay a store's episodes in the browser."""
 
 from __future__ import annotations
 
@@ -9,22 +9,26 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
+from demo.cli.options import robot_option, store_argument
 from demo.cli.output import console, err_console
 
 
 @app.command()
 def view(
-    src: Path = typer.Argument(..., help="Store directory (e.g. pick.zarr)."),
+    src: Path = store_argument(),
     episode: int = typer.Option(0, "--episode", "-e", help="Episode shown first."),
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one; a busy one moves to the next)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (127.0.0.1: this machine only)."),
-    mjcf: Path = typer.Option(None, "--mjcf", help="Draw this MJCF model instead of the store's task scene."),
+    mjcf: Path = typer.Option(None, "--mjcf", metavar="XML", help="Draw this MJCF model instead of the store's task scene.",
+                              show_default="the store's task scene"),
+    robot: Path = robot_option("Robot config TOML to use when the store's robot files cannot be found.",
+                               default="the robot the store records"),
     no_play: bool = typer.Option(False, "--no-play", help="Start paused."),
 ) -> None:
     """Replay episodes in 3D from their recorded simulator states, with curves and curation flags."""
     from demo.view.app import serve
 
-    viewer = serve(src, host=host, port=port, episode=episode, mjcf=mjcf, autoplay=not no_play)
+    viewer = serve(src, host=host, port=port, episode=episode, mjcf=mjcf, robot=robot, autoplay=not no_play)
     # Ctrl-C (and SIGTERM) end the wait below even when the shell started us with SIGINT ignored.
     previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:

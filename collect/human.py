@@ -30,9 +30,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from demo.collect.retarget import retarget_features
-from demo.collect.rollout import Episode, StepCommand, rollout
-from demo.collect.scripted import CollectConfig, CollectResult, episode_seed, make_env_for, open_output, store_meta
+from demo.collect.scripted import (CollectConfig, CollectResult, collect_tick, make_env_for, open_output,
+                                   store_meta)
 from demo.errors import DemoError
+from demo.progress import Progress, or_silent
+from demo.seeds import episode_seed
+from demo.sim.rollout import Episode, StepCommand, rollout
 from demo.store import StoreMeta
 
 HUMAN_SOURCES = ("kinesthetic", "vr")
@@ -137,32 +140,29 @@ def record_episodes(
     *,
     append: bool = False,
     overwrite: bool = False,
-    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
-    on_start: Callable[[int], None] | None = None,
+    progress: Progress | None = None,
 ) -> HumanCollectResult:
     """Run ``run_episode(env, index, count)`` for every input episode and append each to ``out``.
 
-    ``run_episode`` returns ``(data, info)`` as ``store.append_episode`` takes them.
-    ``on_start(count)`` is called once the store is open (e.g. to size a progress bar),
-    ``on_episode(index, info, length)`` after each episode is committed.
+    ``run_episode`` returns ``(data, info)`` as ``store.append_episode`` takes them. ``progress``
+    gets a ``collect_tick`` once the store is open and after each committed episode.
     """
     out = Path(out)
+    report = or_silent(progress)
     env = make_env_for(config.collect_config())
     start = time.perf_counter()
     successes = frames = unreachable = 0
     try:
         store = open_output(out, human_store_meta(config, env), append, overwrite)
         try:
-            if on_start:
-                on_start(count)
+            report(collect_tick(config.task, 0, count, 0, 0, 0.0))
             for index in range(count):
                 data, info = run_episode(env, index, count)
                 store.append_episode(data, **info)
                 successes += int(info["success"])
                 frames += len(data["action"])
                 unreachable += int(info.get("unreachable_frames", 0))
-                if on_episode:
-                    on_episode(index, info, len(data["action"]))
+                report(collect_tick(config.task, index + 1, count, successes, frames, time.perf_counter() - start))
         finally:
             store.close()
     finally:

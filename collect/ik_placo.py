@@ -34,7 +34,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import quat2mat
+from demo.sim.geometry import quat_to_mat
 from demo.sim.ik import IKParams
 
 
@@ -146,7 +146,7 @@ class PlacoIK:
         """Arm joint targets one iteration (``dt``) from ``q`` toward the EE pose (world frame)."""
         self.set_q(q)
         T = self._T
-        T[:3, :3] = quat2mat(quat_world)
+        T[:3, :3] = quat_to_mat(quat_world)
         T[:3, 3] = pos_world
         self.frame_task.T_world_frame = T
         if self._table is not None:

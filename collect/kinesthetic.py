@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from demo.collect.human import (
 )
 from demo.collect.retarget import ArmFK
 from demo.errors import DemoError
+from demo.progress import Progress
 from demo.sim import load_robot
 
 LIMIT_TOL = 1e-3  # rad beyond a joint limit that still counts as inside (encoder noise)
@@ -188,8 +188,7 @@ def collect_kinesthetic(
     cameras: tuple[tuple[str, int, int], ...] = (),
     append: bool = False,
     overwrite: bool = False,
-    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
-    on_start: Callable[[int], None] | None = None,
+    progress: Progress | None = None,
 ) -> HumanCollectResult:
     """Play every episode of a joint CSV through the simulator into the store at ``out``."""
     arm_joints = load_robot(robot).arm_joints
@@ -212,5 +211,4 @@ def collect_kinesthetic(
         data["info.ik_ok"], data["info.ik_error"] = ik_ok, ik_err
         return data, episode_info(config, track.episode, s, episode.success, episode.first_success_step, ik_ok)
 
-    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite,
-                           on_episode=on_episode, on_start=on_start)
+    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, progress=progress)

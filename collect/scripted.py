@@ -8,7 +8,7 @@ episode, and no episode is ever half-written.
 
 Seeds: episode ``i`` of a run with ``--seed S`` starts from ``env.reset(start_seed(S, i))``, a
 32-bit seed derived with numpy's SeedSequence so that runs with different ``S`` do not share
-initial states: ``episode_seed(S, i)``, except on a bimodal task (``avoid``), where episodes ``2k``
+initial states: ``episode_seed(S, i)`` (:mod:`demo.seeds`), except on a bimodal task (``avoid``), where episodes ``2k``
 and ``2k + 1`` both start from ``episode_seed(S, k)`` and pass the obstacle on opposite sides (which
 side goes first is drawn per pair; the pair shares its noise streams too, so it differs only in the
 side). Each start state is then demonstrated both ways and the data are a genuinely bimodal
@@ -23,7 +23,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,8 +31,10 @@ from typing import Any
 import numpy as np
 
 from demo.collect.operators import Operator, get_profile
-from demo.collect.rollout import Episode, StepCommand, recorded_features, rollout
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
+from demo.seeds import episode_seed
+from demo.sim.rollout import Episode, StepCommand, recorded_features, rollout
 from demo.store import EpisodeStore, StoreMeta
 
 
@@ -49,10 +51,6 @@ class CollectConfig:
     task_options: dict[str, Any] = field(default_factory=dict)
     cameras: tuple[tuple[str, int, int], ...] = ()
     first_episode: int = 0  # index of the first episode in the seed sequence (to extend a run)
-
-
-def episode_seed(seed: int, index: int) -> int:
-    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
 def make_env_for(config: CollectConfig) -> Any:
@@ -185,12 +183,13 @@ def run_episodes(config: CollectConfig, workers: int) -> Iterator[list[EpisodeRe
 
 
 def store_meta(config: CollectConfig, env: Any) -> StoreMeta:
-    robot = env.robot
+    from demo.sim.robot_record import robot_record
+
     return StoreMeta(
         fps=float(env.fps),
         features=recorded_features(env),
         action=env.action_spec,
-        robot={"name": robot.name, "config": str(robot.config_path) if config.robot else "builtin"},
+        robot=robot_record(env.robot),  # by content: the store carries a non-built-in robot's files
         task={"name": config.task, "options": dict(config.task_options), "horizon": int(env.horizon)},
         provenance=[{"op": "collect", "source": "scripted", **_jsonable(asdict(config))}],
     )
@@ -203,6 +202,8 @@ def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
 def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
     """Create the output store, or open it to append after checking it records the same thing."""
     if append and out.exists():
+        from demo.sim.robot_record import same_robot
+
         store = EpisodeStore.open(out, "a")
         have = store.meta
         mismatch = [
@@ -210,7 +211,7 @@ def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> Ep
             for name, a, b in [
                 ("task", (have.task or {}).get("name"), (meta.task or {}).get("name")),
                 ("task options", (have.task or {}).get("options"), (meta.task or {}).get("options")),
-                ("robot", have.robot, meta.robot),
+                ("robot", same_robot(have.robot, meta.robot), True),
                 ("features", {k: v.to_json() for k, v in have.features.items()},
                  {k: v.to_json() for k, v in meta.features.items()}),
                 ("action", have.action.to_json(), meta.action.to_json()),
@@ -239,6 +240,13 @@ class CollectResult:
         return self.successes / max(1, self.episodes)
 
 
+def collect_tick(task: str, done: int, total: int, successes: int, frames: int, seconds: float) -> Tick:
+    """Progress after ``done`` of ``total`` episodes are committed: successes, frames recorded so far
+    and the recording rate (frames per second of wall time)."""
+    return Tick(f"collect {task}", done, total,
+                {"success": f"{successes}/{done}", "frames": frames, "frames/s": frames / max(seconds, 1e-9)})
+
+
 def collect_scripted(
     config: CollectConfig,
     out: str | Path,
@@ -246,11 +254,11 @@ def collect_scripted(
     workers: int = 1,
     append: bool = False,
     overwrite: bool = False,
-    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
+    progress: Progress | None = None,
 ) -> CollectResult:
     """Collect ``config.episodes`` scripted episodes into the store at ``out``.
 
-    ``on_episode(index, info, length)`` is called after each episode is committed (progress bars).
+    ``progress`` gets a :func:`collect_tick` once the store is open and after each committed episode.
     """
     if config.episodes < 1:
         raise DemoError("--episodes", "must be at least 1")
@@ -266,19 +274,21 @@ def collect_scripted(
     store = open_output(out, meta, append, overwrite)
     if append:
         config.first_episode = max(config.first_episode, _next_episode_index(store, config))
-    successes = frames = 0
+    report = or_silent(progress)
+    done = successes = frames = 0
     modes: dict[str, int] = {}
     start = time.perf_counter()
     try:
+        report(collect_tick(config.task, 0, config.episodes, 0, 0, 0.0))
         for batch in run_episodes(config, workers):
             store.append_episodes([(data, info) for _, data, info in batch])
-            for index, data, info in batch:
+            for _, data, info in batch:
+                done += 1
                 successes += int(info["success"])
                 frames += len(data["action"])
                 if info.get("expert_mode"):
                     modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
-                if on_episode:
-                    on_episode(index, info, len(data["action"]))
+                report(collect_tick(config.task, done, config.episodes, successes, frames, time.perf_counter() - start))
     finally:
         store.close()
     return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes)

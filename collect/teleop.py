@@ -2,8 +2,11 @@
 
 The page shows the task scene (drawn by :class:`demo.view.scene.MujocoScene`), a transform gizmo
 and a panel with **Start** (reset to the next episode's initial state and record), **Stop & save**,
-**Discard**, **Open gripper** / **Close gripper** and a status line. The simulation runs in real
-time at the control rate in a background thread.
+**Discard**, **Open gripper** / **Close gripper** and a status line. A button is enabled only when
+the current state allows it (:meth:`TeleopSession.allowed`): Start while not recording, Stop & save
+once the recording has some motion in it (the hand moved or the gripper was used) and there is a
+store to save to, Discard while recording, Open/Close when the gripper is not already so. The
+simulation runs in real time at the control rate in a background thread.
 
 Modes:
 
@@ -38,8 +41,9 @@ import numpy as np
 from demo.collect.human import HumanConfig, InputEpisode, episode_info, human_store_meta
 from demo.collect.scripted import open_output
 from demo.collect.retarget import IK_BACKENDS, Retargeter
-from demo.collect.scripted import episode_seed, make_env_for
+from demo.collect.scripted import make_env_for
 from demo.errors import DemoError
+from demo.seeds import episode_seed
 from demo.sim.geometry import quat_conj, quat_mul
 
 MODES = ("kinesthetic", "vr")
@@ -101,6 +105,8 @@ class TeleopSession:
             self.saved = 0
             self.grip = 0.0
             self.recording = False
+            self.moved = False  # the hand moved or the gripper was used since Start: something to save
+            self._enabled: dict[str, bool] = {}  # the buttons' enabled state as last sent to the page
             self._frames: list[dict[str, np.ndarray]] = []
             self._ok: list[bool] = []
             self._err: list[tuple[float, float]] = []
@@ -148,6 +154,25 @@ class TeleopSession:
     def _on_gizmo(self) -> None:
         with self._lock:
             self._hand_world = (np.array(self.gizmo.position, dtype=np.float64), np.array(self.gizmo.wxyz, dtype=np.float64))
+            self.moved |= self.recording
+
+    def allowed(self) -> dict[str, bool]:
+        """Which controls the current state allows; the page disables the others and :meth:`press` ignores them."""
+        with self._lock:
+            return {
+                "start": not self.recording,
+                "stop": self.recording and self.moved and self.store is not None,
+                "discard": self.recording,
+                "open": self.grip != 0.0,
+                "close": self.grip != 1.0,
+            }
+
+    def _update_buttons(self) -> None:
+        allowed = self.allowed()
+        for name, enabled in allowed.items():
+            if self._enabled.get(name) != enabled:  # only changes go over the websocket
+                self.buttons[name].disabled = not enabled
+        self._enabled = allowed
 
     def _status_text(self) -> str:
         state = f"recording, frame {len(self._frames)}" if self.recording else "idle (press Start to record)"
@@ -158,6 +183,7 @@ class TeleopSession:
     def _show(self) -> None:
         self.scene.show(self.env.get_state())
         self.status.content = self._status_text()
+        self._update_buttons()
 
     # ------------------------------------------------------------------ controls (thread-safe)
     @property
@@ -169,10 +195,15 @@ class TeleopSession:
         return int(self.server.get_port())
 
     def press(self, name: str) -> None:
-        """What a button does: start, stop (save), discard, open, close."""
+        """What a button does: start, stop (save), discard, open, close; a control the state does not
+        allow (see :meth:`allowed`) does nothing but say so in the status line."""
         with self._lock:
-            if name == "start":
-                self.episode_index += int(self.recording or self._frames != [])
+            allowed = self.allowed()
+            if name not in allowed:
+                raise ValueError(f"unknown control {name!r}")
+            if not allowed[name]:
+                self.status_note = f"{self.buttons[name].label}: not now"
+            elif name == "start":
                 self._reset_episode()
                 self.recording = True
                 self.status_note = ""
@@ -180,10 +211,10 @@ class TeleopSession:
                 self._finish(save=True)
             elif name == "discard":
                 self._finish(save=False)
-            elif name in ("open", "close"):
-                self.grip = 1.0 if name == "close" else 0.0
             else:
-                raise ValueError(f"unknown control {name!r}")
+                self.grip = 1.0 if name == "close" else 0.0
+                self.moved |= self.recording
+            self._update_buttons()
 
     def set_hand(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Move the hand (the gizmo) to a pose in the robot base frame (m, wxyz)."""
@@ -191,6 +222,7 @@ class TeleopSession:
         with self._lock:
             self._hand_world = world
             self.gizmo.position, self.gizmo.wxyz = world
+            self.moved |= self.recording
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured EE pose, base frame."""
@@ -210,6 +242,7 @@ class TeleopSession:
         self._hand_world = self._ee_world()
         if getattr(self, "gizmo", None) is not None:
             self.gizmo.position, self.gizmo.wxyz = self._hand_world
+        self.moved = False
 
     def _finish(self, save: bool) -> None:
         if not self.recording and not self._frames:

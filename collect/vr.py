@@ -64,7 +64,8 @@ from demo.collect.human import (
 )
 from demo.collect.retarget import IK_BACKENDS, Retargeter, RetargetParams, RetargetStep
 from demo.errors import DemoError
-from demo.sim.geometry import mat2quat, quat_conj, quat_mul
+from demo.progress import Progress
+from demo.sim.geometry import mat_to_quat, quat_conj, quat_mul
 
 QUAT_NORM_TOL = 0.01
 POSE_KEYS = {"t", "pos", "quat", "grip", "engaged"}
@@ -212,7 +213,7 @@ def load_calibration(path: str | Path) -> Calibration:
         mat = np.stack([as_floats(where, "rotation", r, 3) for r in rot])
         if not np.allclose(mat @ mat.T, np.eye(3), atol=1e-3) or np.linalg.det(mat) < 0:
             raise DemoError(where, "'rotation' matrix is not a rotation (orthonormal, det +1)")
-        quat = mat2quat(mat)
+        quat = mat_to_quat(mat)
     else:
         quat = _unit_quat(where, "rotation", rot)
     scale = as_float(where, "scale", raw.get("scale", 1.0))
@@ -443,16 +444,14 @@ def collect_vr(
     cameras: tuple[tuple[str, int, int], ...] = (),
     append: bool = False,
     overwrite: bool = False,
-    on_episode: Callable[[int, dict[str, Any], int], None] | None = None,
-    on_start: Callable[[int], None] | None = None,
+    progress: Progress | None = None,
 ) -> HumanCollectResult:
     """Retarget every episode of a pose file into the store at ``out`` (see the module docstring).
 
     ``calib``: calibration JSON (tracker -> base); None aligns the first pose to the EE at reset.
     ``scale``: robot motion per hand motion. ``ik``: "mink" or "placo". ``smoothing``: One Euro
     settings, or just the position cutoff at rest in Hz (0 = no smoothing). ``operator``: None
-    takes each episode's header ``operator``, else "human". ``on_start(count)`` /
-    ``on_episode(index, info, length)``: progress callbacks.
+    takes each episode's header ``operator``, else "human". ``progress``: a tick per committed episode.
     """
     if not isinstance(smoothing, SmoothingParams):
         if not float(smoothing) >= 0:
@@ -485,5 +484,4 @@ def collect_vr(
         info["ik"] = ik
         return data, info
 
-    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite,
-                           on_episode=on_episode, on_start=on_start)
+    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, progress=progress)

@@ -6,7 +6,6 @@ Modules (import them directly; this package imports nothing, so ``demo --help`` 
   ``ee_delta``, ``ee7``) and, in its docstring, every convention (frames, Euler order, delta
   composition, anchors, gripper range and sign). ``make_format``, ``parse_spec``, ``encode``,
   ``decode``.
-- :mod:`demo.convert.rotations`: euler / rotvec / rot6d / quat <-> matrix, vectorised.
 - :mod:`demo.convert.kinematics`: ``Kinematics``, batched FK of the EE site in the base frame.
 - :mod:`demo.convert.ik`: ``IKSolver`` (mink, daqp), converged and warm-started per frame.
 - :mod:`demo.convert.context`: the robot and task scene a store names.

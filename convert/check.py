@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,12 +19,13 @@ from typing import Any
 import numpy as np
 
 from demo.convert import representations as reps
-from demo.convert import rotations
 from demo.convert.adapter import ActionAdapter
 from demo.convert.context import load_context
 from demo.convert.convert import ConvertOptions, Converter, IKSummary, episode_anchors, measured_joints, target_format
 from demo.convert.representations import ActionFormat, JointTrack, PoseTrack, Segments
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
+from demo.sim.geometry import angle_between, quat_to_mat
 from demo.store import EpisodeStore
 
 
@@ -82,7 +82,7 @@ def _rollout(env: Any, state0: np.ndarray, adapter: ActionAdapter, actions: np.n
     for t, a in enumerate(actions):
         env.step(adapter(a))
         pos[t], quat[t] = env.ee_pose()
-    return pos, rotations.quat_to_mat(quat), bool(env.success())
+    return pos, quat_to_mat(quat), bool(env.success())
 
 
 def replay_check(
@@ -90,12 +90,16 @@ def replay_check(
     opts: ConvertOptions,
     *,
     episodes: Any = None,
-    on_episode: Callable[[EpisodeCheck], None] | None = None,
+    progress: Progress | None = None,
 ) -> CheckReport:
-    """Replay original and converted actions of the selected episodes from their recorded states."""
+    """Replay original and converted actions of the selected episodes from their recorded states.
+
+    ``progress`` counts episodes replayed (stage ``replay check``) and how many agree on success.
+    """
     from demo.sim import make_env
 
     path = Path(path)
+    tell = or_silent(progress)
     with EpisodeStore.open(path) as store:
         meta = store.meta
         if "sim.state" not in meta.features:
@@ -109,10 +113,12 @@ def replay_check(
         task = meta.task or {}
         env = make_env(task["name"], robot=ctx.robot, **dict(task.get("options") or {}))
         report = CheckReport(str(path), src.name, dst.name)
+        chosen = store.select(episodes)
         try:
             run_src = ActionAdapter(src, env, kin=ctx.kin)
             run_dst = ActionAdapter(dst, env, opts.ik, kin=ctx.kin)
-            for i in store.select(episodes):
+            tell(Tick("replay check", 0, len(chosen)))
+            for i in chosen:
                 ep = store.read_episode(int(i))
                 seg = Segments.single(len(ep["action"]))
                 anchor, _ = episode_anchors([ep], ctx, src, f"{path} episode {i}")
@@ -126,14 +132,14 @@ def replay_check(
                 check = EpisodeCheck(
                     episode=int(i), frames=len(converted),
                     max_pos_err_m=float(np.linalg.norm(p1 - p2, axis=1).max()),
-                    max_rot_err_rad=float(rotations.angle_between(R1, R2).max()),
+                    max_rot_err_rad=float(angle_between(R1, R2).max()),
                     recorded_success=bool(store.episode_info(int(i))["success"]),
                     original_success=ok1, converted_success=ok2,
                     ik_failed_steps=run_dst.ik_failures - failures,
                 )
                 report.episodes.append(check)
-                if on_episode:
-                    on_episode(check)
+                agree = sum(e.agree for e in report.episodes)
+                tell(Tick("replay check", len(report.episodes), len(chosen), {"agree": f"{agree}/{len(report.episodes)}"}))
         finally:
             env.close()
     return report
@@ -158,9 +164,13 @@ class RoundTrip:
 
 
 def round_trip(path: str | Path, opts: ConvertOptions, *, episodes: Any = None,
-               on_episode: Callable[[int], None] | None = None) -> RoundTrip:
-    """Convert the selected episodes there and back twice, in memory, and measure what changed."""
+               progress: Progress | None = None) -> RoundTrip:
+    """Convert the selected episodes there and back twice, in memory, and measure what changed.
+
+    ``progress`` counts episodes (stage ``round trip``).
+    """
     path = Path(path)
+    tell = or_silent(progress)
     with EpisodeStore.open(path) as store:
         meta = store.meta
         ctx = load_context(meta, path, opts.robot, "--round-trip")
@@ -176,7 +186,9 @@ def round_trip(path: str | Path, opts: ConvertOptions, *, episodes: Any = None,
         diff = np.zeros(dst.dim)
         frames = 0
         q_all = []
-        for i in store.select(episodes):
+        chosen = store.select(episodes)
+        tell(Tick("round trip", 0, len(chosen)))
+        for done, i in enumerate(chosen, 1):
             ep = store.read_episode(int(i), ["action", *[k for k in ("sim.state", "obs.joint_pos",
                                                                        reps.EE_ANCHOR_KEY, reps.JOINT_ANCHOR_KEY)
                                                           if k in meta.features]])
@@ -199,13 +211,12 @@ def round_trip(path: str | Path, opts: ConvertOptions, *, episodes: Any = None,
             p2, R2 = _poses(there, src, a2, anchor, seg, where)
             if ok.any():
                 pos_err = max(pos_err, float(np.linalg.norm(p2 - p0, axis=1)[ok].max()))
-                rot_err = max(rot_err, float(rotations.angle_between(R2, R0)[ok].max()))
+                rot_err = max(rot_err, float(angle_between(R2, R0)[ok].max()))
                 diff = np.maximum(diff, np.abs(b3 - b1)[ok].max(axis=0))
             frames += len(a0)
             if src.rep.space == "joint":
                 q_all.append(there.commands(a0, anchor, seg, where).q)  # type: ignore[union-attr]
-            if on_episode:
-                on_episode(int(i))
+            tell(Tick("round trip", done, len(chosen)))
         q = np.concatenate(q_all) if q_all else ctx.kin.random_q(256, np.random.default_rng(0))
         pe, re = ctx.kin.verify(q[:: max(1, len(q) // 1000)])
     return RoundTrip(str(path), src.name, dst.name, frames, ik.to_json(), pos_err, rot_err, diff.tolist(),

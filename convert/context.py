@@ -1,9 +1,10 @@
 """The robot behind a store: its config, kinematics, and the task scene its ``sim.state`` belongs to.
 
-A store names its robot in ``meta.robot = {"name": ..., "config": <robot TOML path> | "builtin"}``
-and its task in ``meta.task = {"name": ..., "options": {...}}``. Kinematics run on the robot MJCF
-alone (what FK and IK need); the task scene is only built to read the measured arm joints out of
-recorded ``sim.state`` vectors, whose layout depends on the scene's objects.
+A store names its robot in ``meta.robot`` (the built-in arm, or a robot recorded by content whose
+files the store carries; see :mod:`demo.sim.robot_record`) and its task in
+``meta.task = {"name": ..., "options": {...}}``. Kinematics run on the robot MJCF alone (what FK
+and IK need); the task scene is only built to read the measured arm joints out of recorded
+``sim.state`` vectors, whose layout depends on the scene's objects.
 """
 
 from __future__ import annotations
@@ -59,20 +60,19 @@ class RobotContext:
         return out
 
 
-def load_context(meta: StoreMeta, where: object, robot_override: str | Path | None = None,
+def load_context(meta: StoreMeta, where: str | Path, robot_override: str | Path | None = None,
                  purpose: str = "this conversion") -> RobotContext:
-    """Load the robot a store names (or ``robot_override``), failing clearly when there is none."""
-    from demo.sim import load_robot
+    """Load the robot a store names (or ``robot_override``), failing clearly when there is none.
+
+    ``where``: the store directory (its ``robot/`` folder holds a recorded robot's files).
+    """
+    from demo.sim.robot_record import resolve_robot
 
     record = meta.robot or {}
-    if robot_override is not None:
-        robot = load_robot(robot_override)
-    else:
-        config = record.get("config")
-        if not config:
-            raise DemoError(where, f"names no robot (metadata 'robot.config' is empty), and {purpose} needs the "
-                                   "robot's kinematics; pass --robot ROBOT.toml")
-        robot = load_robot(None if config == "builtin" else config)
+    if robot_override is None and not record.get("config") and not record.get("files"):
+        raise DemoError(where, f"names no robot (metadata 'robot.config' is empty), and {purpose} needs the "
+                               "robot's kinematics; pass --robot ROBOT.toml")
+    robot = resolve_robot(record, robot_override, where)
     try:
         model = robot.spec().compile()
     except DemoError:

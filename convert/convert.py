@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import shutil
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ from demo.convert.representations import (
     EE_ANCHOR_KEY, JOINT_ANCHOR_KEY, ActionFormat, Anchor, JointTrack, PoseTrack, Segments,
 )
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 
 IK_KEY = "info.ik_converged"
@@ -232,10 +232,14 @@ def convert_store(
     opts: ConvertOptions,
     *,
     overwrite: bool = False,
-    on_progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> ConvertResult:
-    """Write a copy of the store at ``src_path`` with actions in ``opts.to`` to ``out``."""
+    """Write a copy of the store at ``src_path`` with actions in ``opts.to`` to ``out``.
+
+    ``progress`` counts frames written (stage ``convert -> <to>``), from the moment ``out`` exists.
+    """
     started = time.perf_counter()
+    report = or_silent(progress)
     src_path, out = Path(src_path), Path(out)
     with EpisodeStore.open(src_path) as store:
         if out.resolve() == store.path.resolve():
@@ -251,12 +255,18 @@ def convert_store(
             dst_spec = dst.spec()
         conv = Converter(src, dst, meta.fps, ctx, opts.ik)
         new_meta = _target_meta(meta, src, dst, dst_spec, conv.crosses and dst.rep.space == "joint")
+        if opts.robot is not None and ctx is not None:  # the output records the robot it was converted with
+            from demo.sim.robot_record import robot_record
+
+            new_meta.robot = robot_record(ctx.robot)
         ik = IKSummary() if conv.crosses and dst.rep.space == "joint" else None
         anchor_sources: dict[str, int] = {}
         check: dict[str, float] | None = None
         skip = {"episode_index", "start", "length", "duration_s"}
-        writer = EpisodeStore.create(out, new_meta, overwrite=overwrite)
+        writer = EpisodeStore.create(out, new_meta, overwrite=overwrite, robot_from=src_path)
         done_frames = 0
+        stage = f"convert -> {dst.name}"
+        report(Tick(stage, 0, store.num_frames, {"episodes": 0}))
         try:
             for block in _blocks(store.episode_lengths):
                 episodes = [store.read_episode(int(i)) for i in block]
@@ -295,8 +305,7 @@ def convert_store(
                     batch.append((data, info))
                 writer.append_episodes(batch)
                 done_frames += int(seg.ends[-1])
-                if on_progress:
-                    on_progress(int(block[-1]) + 1, done_frames)
+                report(Tick(stage, done_frames, store.num_frames, {"episodes": int(block[-1]) + 1}))
             record = {
                 "op": "convert",
                 "from": str(src_path),

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import mink
 import numpy as np
 
-from demo.convert import rotations
 from demo.convert.kinematics import Kinematics
+from demo.sim.geometry import angle_between
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ class IKSolver:
         Rb = d.xmat[kin.base_id].reshape(3, 3)
         p = Rb.T @ (d.site_xpos[kin.site_id] - d.xpos[kin.base_id])
         R = Rb.T @ d.site_xmat[kin.site_id].reshape(3, 3)
-        return float(np.linalg.norm(p - pos)), float(rotations.angle_between(R, rot))
+        return float(np.linalg.norm(p - pos)), float(angle_between(R, rot))
 
     def solve(self, pos: np.ndarray, rot: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray, bool, float, float, int]:
         """One target (base frame) from ``q_init``: ``(q, converged, pos_err, rot_err, iters)``."""

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from demo.convert import rotations
 from demo.errors import DemoError
+from demo.sim.geometry import angle_between, quat_to_mat
 
 _HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
 _SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -168,7 +168,7 @@ class Kinematics:
         """Max position (m) and rotation (rad) difference between :meth:`fk` and ``mj_kinematics``."""
         p1, R1 = self.fk(q)
         p2, R2 = self.fk_mujoco(q)
-        return float(np.abs(p1 - p2).max(initial=0.0)), float(rotations.angle_between(R1, R2).max(initial=0.0))
+        return float(np.abs(p1 - p2).max(initial=0.0)), float(angle_between(R1, R2).max(initial=0.0))
 
     # ------------------------------------------------------------------------------ helpers
     def base_pose_world(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +187,7 @@ class Kinematics:
 
 def _rot_or_none(quat: np.ndarray) -> np.ndarray | None:
     """Rotation matrix of ``quat``, or None when it is the identity (the product is skipped)."""
-    R = rotations.quat_to_mat(quat)
+    R = quat_to_mat(quat)
     return None if np.array_equal(R, np.eye(3)) else R
 
 

@@ -8,7 +8,7 @@ Frames and units
     frame of its ``base_body`` (the *base frame*), never the world frame. Positions in m, angles
     in rad, time step = 1 / fps of the store (one action per control step).
   * Quaternions are w, x, y, z (MuJoCo's order). Rotation forms are those of
-    :mod:`demo.convert.rotations`: ``euler`` = extrinsic x-y-z roll, pitch, yaw about the fixed
+    :mod:`demo.sim.geometry`: ``euler`` = extrinsic x-y-z roll, pitch, yaw about the fixed
     base axes, ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (MuJoCo ``mju_euler2Quat(..., "XYZ")``);
     ``rotvec`` = axis * angle; ``rot6d`` = first two rows of R (pytorch3d / Diffusion Policy layout).
 
@@ -57,8 +57,8 @@ from typing import Any
 
 import numpy as np
 
-from demo.convert import rotations as rot
 from demo.errors import DemoError
+from demo.sim import geometry as rot
 from demo.store import ActionSpec, FeatureSpec
 
 GRIPPER_NAME = "gripper"
@@ -256,12 +256,12 @@ class Anchor:
     def pose7(self) -> np.ndarray:
         """[E, 7]: position + quaternion wxyz (the ``info.ee_anchor`` layout)."""
         assert self.pos is not None and self.rot is not None
-        return np.concatenate([self.pos, rot.mat_to_quat(self.rot)], axis=-1)
+        return np.concatenate([self.pos, rot.from_mat(self.rot, "quat")], axis=-1)
 
     @classmethod
     def from_pose7(cls, pose: np.ndarray, q: np.ndarray | None = None) -> "Anchor":
         pose = np.atleast_2d(np.asarray(pose, dtype=np.float64))
-        return cls(q=q, pos=pose[:, :3].copy(), rot=rot.quat_to_mat(pose[:, 3:7]))
+        return cls(q=q, pos=pose[:, :3].copy(), rot=rot.to_mat(pose[:, 3:7], "quat"))
 
 
 class Segments:

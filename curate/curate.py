@@ -37,6 +37,7 @@ from demo.curate.signals import jerk as jerk_signals
 from demo.curate.signals import outliers as outlier_signals
 from demo.curate.signals import success as success_signals
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore
 
 ALL_SIGNALS: tuple[Signal, ...] = (
@@ -48,7 +49,9 @@ ALL_SIGNALS: tuple[Signal, ...] = (
     *duplicate_signals.SIGNALS,
 )
 REASONS = ("failed", "idle", "jerky", "inconsistent", "novel", "duplicate", "length", "near-miss")
-Progress = Callable[[str], None]
+# What compute_signals does, in order: one progress step each (stage "curate").
+STEPS = ("load", "success", "idle", "jerk", "length", "consistency", "duplicates")
+REASONS_COLUMN = "curate.reasons"  # why each episode was dropped ("" = kept), written with --mask
 
 
 @dataclass
@@ -116,31 +119,32 @@ class Curation:
 
 
 def compute_signals(
-    store: EpisodeStore, config: CurateConfig, progress: Progress | None = None
+    store: EpisodeStore, config: CurateConfig, progress: Progress | None = None, total: int = len(STEPS)
 ) -> tuple[dict[str, np.ndarray], FrameData, dict[str, float]]:
-    """Every signal for every episode: ``(signals, frame data, seconds per stage)``."""
-    tell = progress or (lambda stage: None)
+    """Every signal for every episode: ``(signals, frame data, seconds per stage)``.
+
+    ``progress`` gets a tick (stage ``curate``, ``total`` steps in all) as each of :data:`STEPS` starts.
+    """
+    report = or_silent(progress)
     timing: dict[str, float] = {}
     signals: dict[str, np.ndarray] = {}
 
-    def stage(name: str, fn: Callable[[], dict[str, np.ndarray]]) -> None:
-        tell(name)
+    def stage(name: str, fn: Callable[[], Any]) -> Any:
+        report(Tick("curate", len(timing), total, {"step": name}))
         t0 = time.perf_counter()
-        signals.update(fn())
+        result = fn()
         timing[name] = time.perf_counter() - t0
+        return result
 
-    tell("load")
-    t0 = time.perf_counter()
-    fd = load_frames(store)
-    timing["load"] = time.perf_counter() - t0
+    fd = stage("load", lambda: load_frames(store))
     tasks = store.column("task")
-    stage("success", lambda: success_signals.compute(store))
-    stage("idle", lambda: idle_signals.compute(fd, config.idle))
-    stage("jerk", lambda: jerk_signals.compute(fd))
+    signals.update(stage("success", lambda: success_signals.compute(store)))
+    signals.update(stage("idle", lambda: idle_signals.compute(fd, config.idle)))
+    signals.update(stage("jerk", lambda: jerk_signals.compute(fd)))
     trimmed_len = signals["trim_stop"] - signals["trim_start"] if config.trim_idle else fd.lengths
-    stage("length", lambda: outlier_signals.compute(trimmed_len, tasks))
-    stage("consistency", lambda: consistency_signals.compute(fd, config.consistency))
-    stage("duplicates", lambda: duplicate_signals.compute(fd, config.duplicates))
+    signals.update(stage("length", lambda: outlier_signals.compute(trimmed_len, tasks)))
+    signals.update(stage("consistency", lambda: consistency_signals.compute(fd, config.consistency)))
+    signals.update(stage("duplicates", lambda: duplicate_signals.compute(fd, config.duplicates)))
     return signals, fd, timing
 
 
@@ -195,14 +199,17 @@ def decide(
     return kept, reasons, codes, trim
 
 
-def analyse(store: EpisodeStore, config: CurateConfig | None = None, progress: Progress | None = None) -> Curation:
-    """Signals and decisions for ``store`` without writing anything."""
+def analyse(
+    store: EpisodeStore, config: CurateConfig | None = None, progress: Progress | None = None, total: int = len(STEPS)
+) -> Curation:
+    """Signals and decisions for ``store`` without writing anything (``progress``: see :func:`compute_signals`)."""
     config = config or CurateConfig()
     config.validate()
-    signals, fd, timing = compute_signals(store, config, progress)
+    signals, fd, timing = compute_signals(store, config, progress, total)
     t0 = time.perf_counter()
     kept, reasons, codes, trim = decide(signals, fd.lengths, config)
     timing["decide"] = time.perf_counter() - t0
+    or_silent(progress)(Tick("curate", len(STEPS), total, {"kept": f"{int(kept.sum())}/{len(kept)}"}))
     return Curation(signals, kept, reasons, codes, trim, fd.lengths, config, timing, fd.num_frames, store.table)
 
 
@@ -241,19 +248,24 @@ def curate(
     ``out``: write the kept episodes (idle-trimmed when ``config.trim_idle``) to a new store there,
     with ``score.*`` columns and a provenance record. ``mask``: write ``score.*`` columns and
     ``mask.<mask>`` (= kept) into the source store, plus ``curate.trim_start``/``curate.trim_stop``
-    (the range a trim would keep; frames are not edited in place). Neither: analyse only.
+    (the range a trim would keep; frames are not edited in place) and ``curate.reasons`` (why
+    each episode was dropped, "" when kept). Neither: analyse only. ``progress``: one tick per
+    step (stage ``curate``): :data:`STEPS`, then ``write`` when there is anything to write.
     """
     source = Path(source)
     if mask is not None and (not mask or not all(ch.isalnum() or ch in "_-" for ch in mask)):
         raise DemoError("--mask", f"mask name {mask!r} must be letters, digits, '_' or '-'")
     if out is not None and Path(out).resolve() == source.resolve():
         raise DemoError(out, "is the source store; curation never overwrites its input (use --mask NAME to mark it in place)")
+    report = or_silent(progress)
+    total = len(STEPS) + int(out is not None or mask is not None)
     with EpisodeStore.open(source, "a" if mask else "r") as store:
-        curation = analyse(store, config, progress)
+        curation = analyse(store, config, progress, total)
         t0 = time.perf_counter()
+        kept = {"kept": f"{int(curation.kept.sum())}/{len(curation.kept)}"}
+        if total > len(STEPS):
+            report(Tick("curate", len(STEPS), total, {**kept, "step": "write"}))
         if out is not None:
-            if progress:
-                progress("write")
             chosen = np.flatnonzero(curation.kept)
             if len(chosen) == 0:
                 raise DemoError(source, "curation kept no episode; loosen the filters (see the report) before writing --out")
@@ -267,7 +279,10 @@ def curate(
                 store.set_column(name, values)
             store.set_column("curate.trim_start", curation.trim[:, 0])
             store.set_column("curate.trim_stop", curation.trim[:, 1])
+            store.set_column(REASONS_COLUMN, ["; ".join(r) for r in curation.reasons])
             store.set_mask(mask, curation.kept)
             store.update_meta(provenance=[*store.meta.provenance, provenance_record(curation, source, mask)])
         curation.timing["write"] = time.perf_counter() - t0
+        if total > len(STEPS):
+            report(Tick("curate", total, total, kept))
     return curation

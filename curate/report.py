@@ -1,9 +1,7 @@
 """What curation did: per-episode decisions with reasons, per-operator keep rates, JSON and a PNG.
 
-The per-operator table is the precision/recall view of a mixed dataset: for every operator (and
-for failed episodes of any operator) the share kept and the share dropped. When the store has
-``expert`` and ``poor`` operators, :func:`targets` checks the figures the curation issue asks for
-(>= 90% of failed and of poor episodes dropped, >= 90% of expert episodes kept).
+The per-operator rows say, for every operator (and for the failed episodes of any operator), how
+many episodes were kept and how many dropped, and for which reasons.
 """
 
 from __future__ import annotations
@@ -17,7 +15,7 @@ import numpy as np
 from demo.curate.curate import ALL_SIGNALS, REASONS, Curation
 from demo.figures import pyplot, save_figure
 
-TARGET = 0.9
+FAILED_ROW = "(failed, any operator)"
 
 
 def _operators(table: Any) -> np.ndarray:
@@ -26,12 +24,12 @@ def _operators(table: Any) -> np.ndarray:
 
 
 def operator_rows(curation: Curation) -> list[dict[str, Any]]:
-    """Per operator (and ``<failed>`` for failures of any operator): counts and kept/dropped shares."""
+    """Per operator (and :data:`FAILED_ROW` for failures of any operator): counts and kept/dropped shares."""
     ops = _operators(curation.table)
     success = curation.signals["success"] > 0.5
     groups: list[tuple[str, np.ndarray]] = [(op or "(none)", ops == op) for op in sorted(set(ops.tolist()))]
     if (~success).any():
-        groups.append(("<failed>", ~success))
+        groups.append((FAILED_ROW, ~success))
     rows = []
     for name, sel in groups:
         n = int(sel.sum())
@@ -49,35 +47,6 @@ def operator_rows(curation: Curation) -> list[dict[str, Any]]:
             }
         )
     return rows
-
-
-def targets(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The issue's acceptance figures, when the store has the simulated operator profiles."""
-    by = {r["operator"]: r for r in rows}
-    if "expert" not in by or "poor" not in by:
-        return None
-    checks = {
-        "expert_kept_share": by["expert"]["kept_share"],
-        "poor_dropped_share": by["poor"]["dropped_share"],
-    }
-    if "<failed>" in by:
-        checks["failed_dropped_share"] = by["<failed>"]["dropped_share"]
-    return {"threshold": TARGET, **checks, "met": all(v >= TARGET for v in checks.values())}
-
-
-def detection(curation: Curation) -> dict[str, Any]:
-    """Precision/recall of the drops when "bad" means failed or operator "poor"."""
-    ops = _operators(curation.table)
-    bad = (curation.signals["success"] < 0.5) | (ops == "poor")
-    dropped = ~curation.kept
-    tp = int((bad & dropped).sum())
-    return {
-        "bad": "failed or operator == 'poor'",
-        "bad_episodes": int(bad.sum()),
-        "dropped": int(dropped.sum()),
-        "precision": tp / dropped.sum() if dropped.any() else float("nan"),
-        "recall": tp / bad.sum() if bad.any() else float("nan"),
-    }
 
 
 def thresholds(curation: Curation) -> dict[str, Any]:
@@ -138,8 +107,6 @@ def build(curation: Curation, *, source: str | Path, out: str | Path | None, mas
             "dropped_by_reason": {code: sum(code in c for c in curation.codes) for code in REASONS},
         },
         "operators": rows,
-        "detection": detection(curation),
-        "targets": targets(rows),
         "timing_s": curation.timing,
         "episodes": episodes,
     }

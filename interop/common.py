@@ -21,6 +21,7 @@ import numpy as np
 import pyarrow as pa
 
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore, FeatureSpec
 from demo.store.episode_table import FIXED_COLUMNS, MASK_PREFIX
 
@@ -182,23 +183,13 @@ def type_from_name(name: str) -> pa.DataType | None:
 
 
 # ---------------------------------------------------------------------------------------------- progress
-def track(items: Iterable[T], total: int, description: str, enabled: bool) -> Iterator[T]:
-    """A rich progress bar on stderr when ``enabled`` (the CLI), silent otherwise (tests, library)."""
-    from demo.cli.output import err_console
-
-    if not enabled or not err_console.is_terminal:  # no bar (nor its stray newline) in logs and pipes
-        yield from items
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    with Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-        console=err_console, transient=True,
-    ) as progress:
-        task = progress.add_task(description, total=total)
-        for item in items:
-            yield item
-            progress.advance(task)
+def track(items: Iterable[T], total: int, stage: str, progress: Progress | None) -> Iterator[T]:
+    """Yield ``items``, reporting each one done to ``progress`` (stage ``stage``, ``total`` episodes)."""
+    report = or_silent(progress)
+    report(Tick(stage, 0, total))
+    for done, item in enumerate(items, 1):
+        yield item
+        report(Tick(stage, done, total))
 
 
 def batches(

@@ -69,6 +69,7 @@ from demo.interop.common import (
     staged_output,
     track,
 )
+from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.episode_store import EpisodeSelection
 
@@ -289,9 +290,11 @@ def export_lerobot(
     overwrite: bool = False,
     episodes: EpisodeSelection = None,
     data_file_mb: float = DATA_FILE_MB,
-    progress: bool = False,
+    progress: Progress | None = None,
 ) -> InteropReport:
-    """Write the store's (selected) episodes as a LeRobotDataset v3.0 folder at ``out``."""
+    """Write the store's (selected) episodes as a LeRobotDataset v3.0 folder at ``out``.
+
+    ``progress``: a tick per episode written (stage ``export lerobot``)."""
     store_path, out = Path(store_path), Path(out)
     check_not_same(store_path, out)
     src = EpisodeStore.open(store_path)
@@ -655,9 +658,11 @@ def import_lerobot(
     out: str | Path,
     *,
     overwrite: bool = False,
-    progress: bool = False,
+    progress: Progress | None = None,
 ) -> InteropReport:
-    """Read a LeRobotDataset v3.0 folder into a new store at ``out``."""
+    """Read a LeRobotDataset v3.0 folder into a new store at ``out``.
+
+    ``progress``: a tick per episode read (stage ``import lerobot``)."""
     root, out = Path(src_dir), Path(out)
     check_not_same(root, out)
     info = read_info(root)

@@ -49,6 +49,7 @@ from demo.interop.common import (
     type_from_name,
     type_name,
 )
+from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.episode_store import EpisodeSelection
 from demo.store.episode_table import MASK_PREFIX
@@ -94,9 +95,11 @@ def export_robomimic(
     overwrite: bool = False,
     episodes: EpisodeSelection = None,
     next_obs: bool = True,
-    progress: bool = False,
+    progress: Progress | None = None,
 ) -> InteropReport:
-    """Write the store's (selected) episodes to a robomimic HDF5 file at ``out``."""
+    """Write the store's (selected) episodes to a robomimic HDF5 file at ``out``.
+
+    ``progress``: a tick per episode written (stage ``export robomimic``)."""
     h5py = _h5py()
     store_path, out = Path(store_path), Path(out)
     check_not_same(store_path, out)
@@ -282,9 +285,11 @@ def import_robomimic(
     out: str | Path,
     *,
     overwrite: bool = False,
-    progress: bool = False,
+    progress: Progress | None = None,
 ) -> InteropReport:
-    """Read a robomimic HDF5 file into a new store at ``out``."""
+    """Read a robomimic HDF5 file into a new store at ``out``.
+
+    ``progress``: a tick per episode read (stage ``import robomimic``)."""
     src_path, out = Path(src_path), Path(out)
     check_not_same(src_path, out)
     report = InteropReport("robomimic", "import", src_path, out)

@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical, mat2quat, quat_conj, quat_mul, yaw_of
+from demo.sim.geometry import canonical, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, load_robot, position_gain
@@ -114,7 +114,7 @@ class Env:
             scratch.qpos[m.jnt_qposadr[jid]] = v
         mujoco.mj_kinematics(m, scratch)
         self.home_ee_pos = self._base_rot_t @ (scratch.site_xpos[self.ee_site] - self.base.pos)
-        self.home_ee_quat = quat_mul(self._base_quat_inv, mat2quat(scratch.site_xmat[self.ee_site]))
+        self.home_ee_quat = quat_mul(self._base_quat_inv, mat_to_quat(scratch.site_xmat[self.ee_site]))
         self.home_yaw = yaw_of(self.home_ee_quat)
 
     def _make_action_spec(self) -> ActionSpec:
@@ -257,9 +257,9 @@ class Env:
         """EE site pose in the base frame: position (m) and quaternion (wxyz)."""
         d = self.data
         if self._base_is_world:
-            return d.site_xpos[self.ee_site].copy(), mat2quat(d.site_xmat[self.ee_site])
+            return d.site_xpos[self.ee_site].copy(), mat_to_quat(d.site_xmat[self.ee_site])
         pos = self._base_rot_t @ (d.site_xpos[self.ee_site] - self.base.pos)
-        quat = quat_mul(self._base_quat_inv, mat2quat(d.site_xmat[self.ee_site]))
+        quat = quat_mul(self._base_quat_inv, mat_to_quat(d.site_xmat[self.ee_site]))
         return pos, quat
 
     def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from demo.sim.geometry import down_quat, nearest_symmetric, quat2mat, quat_angle, yaw_of
+from demo.sim.geometry import down_quat, nearest_symmetric, quat_angle, quat_to_mat, yaw_of
 
 if TYPE_CHECKING:
     from demo.sim.env import Env
@@ -76,7 +76,7 @@ class BoxState:
 
 def box_yaw(quat: np.ndarray) -> float:
     """Heading of the box's most horizontal axis (a box looks the same every 90 deg)."""
-    m = quat2mat(quat)
+    m = quat_to_mat(quat)
     k = int(np.argmin(np.abs(m[2])))  # the body axis (column) with the least vertical component
     return math.atan2(m[1, k], m[0, k])
 
@@ -109,7 +109,7 @@ def grasp_yaw(env: "Env", box: BoxState, offset: float, others: Sequence[np.ndar
 def in_hand(env: "Env", box: BoxState) -> tuple[bool, bool]:
     """(between the fingers, held): held = between and touched by two finger bodies."""
     ee_pos, ee_quat = env.ee_pose()
-    rel = quat2mat(ee_quat).T @ (box.pos - ee_pos)
+    rel = quat_to_mat(ee_quat).T @ (box.pos - ee_pos)
     between = abs(rel[0]) < 0.02 and abs(rel[1]) < box.half + 0.01 and abs(rel[2]) < 0.6 * box.half + 0.01
     return between, between and env.finger_contacts(box.geom_mask) >= 2
 

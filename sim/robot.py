@@ -21,8 +21,9 @@ Each arm joint must be a hinge or slide joint driven by a position-like actuator
 target, e.g. MJCF ``<position>`` or Menagerie's ``<general>`` with ``biasprm="0 -kp -kv"``). The
 finger bodies must be descendants of the EE site's body (the experts detect a grasp by contacts
 of two such bodies with the object).
-The built-in robot (``load_robot(None)``) is ``sim/assets/panda.toml``. A MuJoCo Menagerie Panda
-checkout works with (its MJCF has no TCP site, so the config adds one)::
+The built-in robot (``load_robot(None)``) is ``sim/assets/panda.toml``. A store records any other
+robot by content: these keys, the MJCF and its asset files (see :mod:`demo.sim.robot_record`).
+A MuJoCo Menagerie Panda checkout works with (its MJCF has no TCP site, so the config adds one)::
 
     name = "menagerie_panda"
     mjcf = "/path/to/mujoco_menagerie/franka_emika_panda/panda.xml"
@@ -68,7 +69,7 @@ class RobotConfig:
     ee_site: str
     base_body: str
     home_key: str
-    config_path: Path | None = None
+    config_path: Path | None = None  # the TOML file, or the store/run folder the robot's files were restored from
     ee_site_body: str | None = None
     ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ee_site_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -84,19 +85,6 @@ class RobotConfig:
     def spec(self) -> mujoco.MjSpec:
         """A fresh MjSpec of the robot MJCF, with the configured EE site added if asked."""
         return robot_spec(self)
-
-    def to_json(self) -> dict[str, Any]:
-        """Small JSON record for store metadata."""
-        return {
-            "name": self.name,
-            "config": str(self.config_path) if self.config_path else None,
-            "mjcf": str(self.mjcf_path),
-            "arm_joints": list(self.arm_joints),
-            "gripper_actuator": self.gripper_actuator,
-            "gripper_range": list(self.gripper_range),
-            "ee_site": self.ee_site,
-            "base_body": self.base_body,
-        }
 
 
 def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
@@ -133,28 +121,41 @@ def load_robot(path: str | Path | RobotConfig | None = None) -> RobotConfig:
         raw = tomllib.loads(cfg_path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise DemoError(cfg_path, f"not a valid TOML robot config: {exc}") from None
+    return robot_from_keys(raw, cfg_path.parent, cfg_path.resolve(), default_name=cfg_path.stem)
+
+
+def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: str = "robot") -> RobotConfig:
+    """Validate a robot config's keys (a parsed TOML file, or a store's record of one).
+
+    ``base``: the folder ``mjcf`` is relative to. ``where``: what errors name, kept as
+    ``config_path`` (the TOML file, or the store/run folder holding the robot's files).
+    """
+    if not isinstance(raw, dict):
+        raise DemoError(where, "robot config must be a table of keys")
     missing = [k for k in _REQUIRED if k not in raw]
     if missing:
-        raise DemoError(cfg_path, f"robot config lacks {', '.join(missing)}")
+        raise DemoError(where, f"robot config lacks {', '.join(missing)}")
     unknown = sorted(set(raw) - set(_REQUIRED) - set(_OPTIONAL))
     if unknown:
-        raise DemoError(cfg_path, f"unknown robot config key(s): {', '.join(unknown)}")
-    mjcf = (cfg_path.parent / str(raw["mjcf"])).resolve()
+        raise DemoError(where, f"unknown robot config key(s): {', '.join(unknown)}")
+    mjcf = (base / str(raw["mjcf"])).resolve()
     if not mjcf.is_file():
-        raise DemoError(cfg_path, f"mjcf file {mjcf} does not exist")
+        raise DemoError(where, f"mjcf file {mjcf} does not exist")
     arm = raw["arm_joints"]
     if not isinstance(arm, list) or not arm or not all(isinstance(j, str) for j in arm):
-        raise DemoError(cfg_path, "'arm_joints' must be a non-empty list of joint names")
-    grip = _floats(cfg_path, "gripper_range", raw["gripper_range"], 2)
+        raise DemoError(where, "'arm_joints' must be a non-empty list of joint names")
+    grip = _floats(where, "gripper_range", raw["gripper_range"], 2)
     if grip[0] == grip[1]:
-        raise DemoError(cfg_path, "'gripper_range' open and closed values must differ")
-    vmax = _floats(cfg_path, "max_joint_velocity", raw.get("max_joint_velocity", 2.0))
+        raise DemoError(where, "'gripper_range' open and closed values must differ")
+    vmax = _floats(where, "max_joint_velocity", raw.get("max_joint_velocity", 2.0))
     if len(vmax) == 1:
         vmax = vmax * len(arm)
     if len(vmax) != len(arm) or min(vmax) <= 0:
-        raise DemoError(cfg_path, f"'max_joint_velocity' needs 1 or {len(arm)} positive numbers")
+        raise DemoError(where, f"'max_joint_velocity' needs 1 or {len(arm)} positive numbers")
+    if not isinstance(raw.get("ee_site_body", ""), str):
+        raise DemoError(where, "'ee_site_body' must be a body name")
     robot = RobotConfig(
-        name=str(raw.get("name", cfg_path.stem)),
+        name=str(raw.get("name", default_name)),
         mjcf_path=mjcf,
         arm_joints=tuple(arm),
         gripper_actuator=str(raw["gripper_actuator"]),
@@ -162,14 +163,35 @@ def load_robot(path: str | Path | RobotConfig | None = None) -> RobotConfig:
         ee_site=str(raw["ee_site"]),
         base_body=str(raw["base_body"]),
         home_key=str(raw["home_key"]),
-        config_path=cfg_path.resolve(),
+        config_path=where,
         ee_site_body=raw.get("ee_site_body"),
-        ee_site_pos=_floats(cfg_path, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
-        ee_site_quat=_floats(cfg_path, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
+        ee_site_pos=_floats(where, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
+        ee_site_quat=_floats(where, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
         gravcomp=bool(raw.get("gravcomp", True)),
         max_joint_velocity=vmax,
     )
     return _validated(robot)
+
+
+def config_keys(robot: RobotConfig, mjcf: str) -> dict[str, Any]:
+    """The robot's config as TOML keys (what :func:`robot_from_keys` reads), ``mjcf`` as given."""
+    keys: dict[str, Any] = {
+        "name": robot.name,
+        "mjcf": mjcf,
+        "arm_joints": list(robot.arm_joints),
+        "gripper_actuator": robot.gripper_actuator,
+        "gripper_range": list(robot.gripper_range),
+        "ee_site": robot.ee_site,
+        "base_body": robot.base_body,
+        "home_key": robot.home_key,
+        "ee_site_pos": list(robot.ee_site_pos),
+        "ee_site_quat": list(robot.ee_site_quat),
+        "gravcomp": robot.gravcomp,
+        "max_joint_velocity": list(robot.max_joint_velocity),
+    }
+    if robot.ee_site_body:
+        keys["ee_site_body"] = robot.ee_site_body
+    return keys
 
 
 def _validated(robot: RobotConfig) -> RobotConfig:

@@ -1,55 +1,147 @@
-"""Run a task's expert for one episode (tests, benchmarks, success-rate checks).
+"""One episode in the simulator: the loop collection, evaluation, DAgger and the expert checks share.
 
-The collector (demo.collect) has its own loop that records frames; this one only judges.
+An *actor* answers each control step ``t`` with a :class:`StepCommand`: what is executed and what
+is recorded as the action (they differ under DART noise or with a learner in control).
+
+When an episode ends (the one rule, whoever acts):
+
+- at the horizon: ``max_steps`` control steps, by default the task's ``env.horizon``; or
+- once success has held for ``hold_success_s`` (default 0.5 s, 10 steps at 20 Hz): success is
+  judged after every step; the episode ends ``hold_success_s * fps`` steps after the step at which
+  it became true, if it stayed true after each of them (a step without it restarts the count), so
+  that demonstrations end in a settled, successful state rather than at the first instant of
+  success. ``hold_success_s = 0`` ends at the first success, ``None`` never ends early.
+- A task's failure (``Task.failure``, e.g. avoid's ``"collision"``) does *not* end the episode:
+  it is reported in :attr:`Episode.failure`. Collected failures have always been recorded to the
+  horizon (curation decides what to keep), and ending them early would change collected stores.
+
+Results: ``length`` is the number of control steps run; ``first_success_step`` the number of
+steps after which success first held (1-based, the stores' ``first_success_step`` column; None if
+never); ``success`` whether it holds after the last step; ``failure`` the task's failure then.
+
+Recording (``record=True``): frame ``t`` holds the state *before* the command of step ``t`` is
+executed: ``obs.*`` and ``sim.state`` from ``env.frame()``, then ``action`` (the label),
+``info.executed_action`` (what was actually sent) and ``info.ee_target`` (the end-effector target
+behind the command, position in m in the base frame + quaternion wxyz, when there is one; all zeros,
+an impossible quaternion, when not).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from demo.sim.env import Env
+from demo.store import FeatureSpec
+
+
+class StepCommand(NamedTuple):
+    executed: np.ndarray  # sent to env.step, in env.action_spec
+    label: np.ndarray  # recorded as the action (the expert's answer, or == executed)
+    ee_target: np.ndarray | None = None  # (7,) pos (m, base frame) + quat wxyz, if known
+
+
+# actor(env, frame, t): the command of control step t, given the frame before it (env.frame()).
+Actor = Callable[[Env, dict[str, np.ndarray], int], StepCommand]
 
 
 @dataclass
-class Rollout:
-    seed: int
-    success: bool  # success reached at some step
-    first_success: int | None  # control step at which it was first reached
-    steps: int  # control steps run
-    final_success: bool  # success at the last step
-    modes: list[str | None] = field(default_factory=list)  # expert.mode per step
+class Episode:
+    data: dict[str, np.ndarray]  # per-frame arrays [T, ...] when recorded, else empty
+    success: bool  # the success predicate after the last step
+    length: int  # control steps run
+    first_success_step: int | None  # steps run when success first held (1-based); None if never
+    failure: str | None = None  # the task's failure after the last step (e.g. "collision")
+
+
+def recorded_features(env: Env) -> dict[str, FeatureSpec]:
+    """Every per-frame key a recorded episode has, besides ``action``."""
+    action = env.action_spec
+    return {
+        **env.features,
+        "info.executed_action": FeatureSpec(
+            (action.dim,), "float32", f"command actually executed ({action.name})", ",".join(action.units), action.names
+        ),
+        "info.ee_target": FeatureSpec(
+            (7,), "float32", "end-effector target behind the command: position + quaternion wxyz, base frame", "m,1"
+        ),
+    }
+
+
+def rollout(
+    env: Env,
+    seed: int,
+    actor: Actor,
+    *,
+    max_steps: int | None = None,
+    hold_success_s: float | None = 0.5,
+    record: bool = True,
+    reset: bool = True,
+) -> Episode:
+    """Run ``actor`` from ``env.reset(seed)`` (or from the current state, ``reset=False``) until the
+    episode ends (module docstring) and return it, recorded frame by frame when ``record``."""
+    if reset:
+        env.reset(seed)
+    horizon = max_steps or env.horizon
+    hold_steps = None if hold_success_s is None else int(round(hold_success_s * env.fps))
+    frames: dict[str, list[np.ndarray]] = {}
+    unknown_target = np.zeros(7, dtype=np.float32)
+    first_success: int | None = None
+    streak_start: int | None = None
+    steps = 0
+    frame = env.frame()
+    for t in range(horizon):
+        command = actor(env, frame, t)
+        if record:
+            frame = dict(frame)
+            frame["action"] = command.label
+            frame["info.executed_action"] = command.executed
+            frame["info.ee_target"] = unknown_target if command.ee_target is None else command.ee_target
+            for key, value in frame.items():
+                frames.setdefault(key, []).append(np.asarray(value))
+        obs, _, success, _, _ = env.step(command.executed)
+        steps = t + 1
+        frame = env.frame(obs)
+        if success:
+            first_success = steps if first_success is None else first_success
+            streak_start = steps if streak_start is None else streak_start
+            if hold_steps is not None and steps - streak_start >= hold_steps:
+                break
+        else:
+            streak_start = None
+    data = {k: np.stack(v) for k, v in frames.items()} if record else {}
+    return Episode(
+        data=data, success=bool(env.success()), length=steps, first_success_step=first_success,
+        failure=env.task.failure(env),
+    )
 
 
 def run_expert(
     env: Env,
     seed: int,
     rng: np.random.Generator | None = None,
-    after_success: int = 5,
+    *,
     max_steps: int | None = None,
+    hold_success_s: float | None = 0.5,
     perturb: Callable[[Env, int], None] | None = None,
+    record: bool = False,
     **style: Any,
-) -> Rollout:
-    """Reset to ``seed``, act with ``env.expert(rng, **style)`` until ``after_success`` steps past
-    the first success or the horizon. ``perturb(env, t)`` runs before each step's action."""
+) -> Episode:
+    """The task's expert ``env.expert(rng, **style)`` from ``env.reset(seed)``, through :func:`rollout`.
+
+    ``perturb(env, t)`` runs before step ``t``'s action (tests: take the cube out of the hand).
+    """
     env.reset(seed)
     expert = env.expert(rng, **style)
-    first: int | None = None
-    steps = 0
-    modes: list[str | None] = []
-    ok = False
-    limit = env.horizon if max_steps is None else max_steps
-    for t in range(limit):
+
+    def act(env: Env, frame: dict[str, np.ndarray], t: int) -> StepCommand:
         if perturb is not None:
             perturb(env, t)
-        _, _, ok, truncated, _ = env.step(expert.act(env))
-        modes.append(expert.mode)
-        steps += 1
-        if ok and first is None:
-            first = t
-        if (first is not None and t >= first + after_success) or truncated:
-            break
-    return Rollout(seed, first is not None, first, steps, bool(ok), modes)
+        # float32 copies, as collection records them (the expert reuses its arrays from step to step).
+        action = np.asarray(expert.act(env), dtype=np.float32)
+        return StepCommand(executed=action, label=action, ee_target=np.asarray(expert.ee_target, np.float32))
+
+    return rollout(env, seed, act, max_steps=max_steps, hold_success_s=hold_success_s, record=record, reset=False)

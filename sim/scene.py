@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from demo.sim.geometry import lookat_quat, quat2mat, quat_mul
+from demo.sim.geometry import lookat_quat, quat_mul, quat_to_mat
 from demo.sim.robot import RobotConfig
 
 TIMESTEP = 0.002
@@ -43,7 +43,7 @@ class BaseFrame:
 
     @property
     def rot(self) -> np.ndarray:
-        return quat2mat(self.quat)
+        return quat_to_mat(self.quat)
 
     def pos_to_world(self, p: Sequence[float]) -> list[float]:
         return (self.pos + self.rot @ np.asarray(p, dtype=np.float64)).tolist()
@@ -126,7 +126,7 @@ def _add_wrist_camera(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
     site = spec.site(robot.ee_site)
     body = site.parent
     site_quat = np.asarray(site.quat, dtype=np.float64)
-    site_rot = quat2mat(site_quat)
+    site_rot = quat_to_mat(site_quat)
     # Beside the hand, above the TCP, looking past the fingertips along the approach axis (+z).
     eye, target = np.array([0.05, 0.0, -0.05]), np.array([0.0, 0.0, 0.12])
     local = lookat_quat(eye, target, up=np.array([1.0, 0.0, 0.0]))

@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical, quat2mat, yaw_of
+from demo.sim.geometry import canonical, quat_to_mat, yaw_of
 from demo.sim.grasp import BoxState, approach_and_grasp, box_yaw, carry_and_place, in_hand
 from demo.sim.scene import BaseFrame, add_box_body, add_marker_geom, add_mocap_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
@@ -225,7 +225,7 @@ class Stack(Task):
         yaw4 = np.empty((self.n, 2), dtype=np.float32)
         to_place = np.empty((self.n, 3), dtype=np.float32)
         ee_pos, ee_quat = env.ee_pose()
-        ee_rot, ee_yaw = quat2mat(ee_quat), yaw_of(ee_quat)
+        ee_rot, ee_yaw = quat_to_mat(ee_quat), yaw_of(ee_quat)
         pad = self.goal(env)
         for i, b in enumerate(self.bodies):
             p, q = env.body_pose(b)

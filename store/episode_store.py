@@ -7,6 +7,8 @@ A store is a directory::
       data/<key>/          one array per feature, all episodes concatenated along time (axis 0)
       meta/episode_ends/   int64 cumulative end index per episode (Diffusion Policy ReplayBuffer)
       episodes.parquet     the episode table (see demo.store.episode_table): the commit record
+      robot/               the robot's MJCF and asset files when it is not the built-in arm
+                           (see demo.store.robot_files; meta.robot lists them with their sha256)
 
 Appending is atomic per episode. The frames are written first (zarr writes each chunk to a
 temporary file and renames it, so a chunk holding committed frames is always either its old or its
@@ -15,7 +17,9 @@ rename is the commit. Frames beyond the table's last episode belong to an append
 committed; readers ignore them and a writer overwrites them. While a writer holds the store, arrays
 carry spare capacity past the committed frames (so most appends rewrite no array metadata); closing
 the writer trims them to the committed length. A crash or SIGKILL at any point
-therefore leaves every finished episode readable.
+therefore leaves every finished episode readable. ``robot/`` is written once, at creation, before
+the first episode table: staged in ``.robot.tmp/`` and renamed into place, so a store's robot folder
+is either complete or absent (a reader then names the missing file), never half-copied.
 
 One process writes at a time (an advisory ``flock`` on ``.lock``); parallel collectors send
 finished episodes to a single writer (see demo.collect).
@@ -41,6 +45,7 @@ from zarr.core.sync import sync
 from demo.errors import DemoError
 from demo.store import episode_table
 from demo.store.chunk_writer import RowWriter
+from demo.store.robot_files import ROBOT_DIR, copy_robot_files
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
 
 TABLE_FILE = "episodes.parquet"
@@ -76,8 +81,13 @@ class EpisodeStore:
         meta: StoreMeta,
         *,
         overwrite: bool = False,
+        robot_from: str | Path | None = None,
     ) -> "EpisodeStore":
-        """Create an empty store at ``path`` (refuses to replace an existing one unless ``overwrite``)."""
+        """Create an empty store at ``path`` (refuses to replace an existing one unless ``overwrite``).
+
+        The robot files ``meta.robot`` lists are copied into ``path/robot/`` from ``robot_from`` (a
+        store or run directory holding them in its ``robot/``), else from the record's source folder.
+        """
         path = Path(path)
         if path.exists() and any(path.iterdir()):
             if not overwrite:
@@ -97,6 +107,7 @@ class EpisodeStore:
                               compressors=compressors)
         root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64",
                                                compressors=None)
+        copy_robot_files(meta.robot, robot_from, path)
         episode_table.write_atomic(episode_table.empty_table(), path / TABLE_FILE)
         store = cls(path, root, meta, episode_table.empty_table(), writable=True)
         store._acquire_lock()
@@ -170,6 +181,11 @@ class EpisodeStore:
             pass
 
     # ------------------------------------------------------------------ structure
+    @property
+    def robot_dir(self) -> Path:
+        """Where the store keeps its robot's files (absent for the built-in arm)."""
+        return self.path / ROBOT_DIR
+
     def array(self, key: str) -> zarr.Array:
         if key not in self.meta.features:
             raise DemoError(self.path, f"has no feature {key!r} (features: {', '.join(self.meta.features)})")
@@ -494,7 +510,7 @@ class EpisodeStore:
         record = {"op": "copy", "from": str(self.path), "episodes": int(len(chosen)), "time": _now()}
         record.update(provenance or {})
         new_meta.provenance = [*new_meta.provenance, record]
-        out = EpisodeStore.create(path, new_meta, overwrite=overwrite)
+        out = EpisodeStore.create(path, new_meta, overwrite=overwrite, robot_from=self.path)
         skip = {"episode_index", "start", "length", "duration_s", "crc32"}
         starts, lengths = self.column("start"), self.episode_lengths
         for block in _blocks(chosen, starts, lengths, max_frames=200_000):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
 import pytest
 
 
@@ -14,3 +17,54 @@ def torch_one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def synthetic_store():
+    """``make(path, episodes=24, length=30, seed=0) -> path``: a store whose actions are a smooth function
+    of the observation (joint targets near ``obs.joint_pos``); every 6th episode failed."""
+    from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
+
+    def make_store(path: Path, episodes: int = 24, length: int = 30, seed: int = 0) -> Path:
+        """Actions are a fixed smooth function of the observation (plus a joint target near obs.joint_pos)."""
+        meta = StoreMeta(
+            fps=20.0,
+            features={
+                "obs.joint_pos": FeatureSpec((2,), "float32"),
+                "obs.joint_vel": FeatureSpec((2,), "float32"),
+                "obs.object_pos": FeatureSpec((1, 3), "float32"),
+                "obs.image_front": FeatureSpec((4, 4, 3), "uint8"),
+            },
+            action=ActionSpec("joint_pos", ("j0.target", "j1.target", "gripper"), ("rad", "rad", "1")),
+            robot={"name": "synthetic", "config": "builtin"},
+            task={"name": "synthetic", "options": {}, "horizon": length},
+        )
+        rng = np.random.default_rng(seed)
+        with EpisodeStore.create(path, meta) as store:
+            for i in range(episodes):
+                q = rng.uniform(-1, 1, (length, 2)).astype(np.float32)
+                obj = rng.uniform(-1, 1, (length, 1, 3)).astype(np.float32)
+                delta = 0.05 * np.tanh(obj[:, 0, :2] * 2)
+                grip = (obj[:, 0, 2:] > 0).astype(np.float32)
+                action = np.concatenate([q + delta, grip], axis=1)
+                store.append_episode(
+                    {"obs.joint_pos": q, "obs.joint_vel": np.zeros_like(q), "obs.object_pos": obj,
+                     "obs.image_front": np.zeros((length, 4, 4, 3), np.uint8), "action": action},
+                    success=i % 6 != 5, seed=100 + i, source="synthetic",
+                )
+        return path
+
+    return make_store
+
+
+@pytest.fixture(scope="session")
+def tiny_bc_config():
+    """``make(data, out, **changes) -> TrainConfig``: a seconds-long single-step BC run of a small MLP."""
+    from demo.train.config import TrainConfig
+
+    def make(data: Path, out: Path, **changes) -> TrainConfig:
+        base = dict(data=str(data), out=str(out), steps=300, batch_size=64, lr=3e-3, warmup_steps=20, chunk=1,
+                    policy={"hidden": (64, 64)}, log_every=50, val_every=100)
+        return TrainConfig(**{**base, **changes})
+
+    return make

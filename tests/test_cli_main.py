@@ -1,4 +1,5 @@
-"""The CLI shell: subcommands listed, version, one-line errors, tracebacks only with --debug."""
+"""The CLI shell: subcommands listed, version, one-line errors, tracebacks only with --debug, and one
+style for every command (positional names, defaults in the help, plain flags)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import sys
 import pytest
 
 from demo import __version__
-from demo.cli.main import app, main
+from demo.cli.main import app, commands, main
 
 SUBCOMMANDS = ["collect", "curate", "convert", "train", "eval", "info", "export", "import", "view", "bench", "quickstart"]
 
@@ -45,3 +46,35 @@ def test_unexpected_error_is_one_line_without_debug(capsys: pytest.CaptureFixtur
     assert err.splitlines() == ["error: ValueError: kaput (run with --debug for the traceback)"]
     assert main(["--debug", "explode"]) == 1
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_one_style_for_every_command() -> None:
+    import typer.core
+
+    found = commands()
+    assert {"collect", "eval", "bench load", "bench infer"} <= set(found)
+    problems = []
+    for name, command in found.items():
+        for p in command.params:
+            where = f"demo {name} {p.name}"
+            if isinstance(p, typer.core.TyperArgument):
+                if p.metavar not in ("STORE", "RUN", "DATASET"):
+                    problems.append(f"{where}: a store is STORE, a run RUN")
+                continue
+            if p.name == "help":
+                continue
+            if any(o.startswith("--no-no") for o in p.secondary_opts):
+                problems.append(f"{where}: --no-no")
+            if ("--overwrite" in p.opts or "--append" in p.opts) and (not p.is_flag or p.secondary_opts):
+                problems.append(f"{where}: not a plain flag")
+            if "--json" in p.opts and p.metavar != "FILE|-":
+                problems.append(f"{where}: not --json FILE|-")
+            if "--episodes" in p.opts and p.type_descriptor.annotation is not int:
+                problems.append(f"{where}: --episodes is a count; a subset is --mask NAME")
+            if "--mask" in p.opts and p.metavar != "NAME":
+                problems.append(f"{where}: not --mask NAME")
+            is_plain_flag = p.is_flag and not p.secondary_opts
+            shown = p.show_default is not False and (p.default not in (None, []) or isinstance(p.show_default, str))
+            if not (is_plain_flag or p.required or shown):
+                problems.append(f"{where}: the help does not say what the default is")
+    assert problems == []

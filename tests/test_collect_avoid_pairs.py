@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from demo.collect.scripted import CollectConfig, collect_scripted, episode_seed, start_seed
+from demo.collect.scripted import CollectConfig, collect_scripted, start_seed
+from demo.seeds import episode_seed
 from demo.store import EpisodeStore
 
 

@@ -13,7 +13,7 @@ from demo.collect.ik_placo import PlacoIK, load_placo_robot
 from demo.collect.retarget import Retargeter, scene_spec_of
 from demo.collect.vr import collect_vr
 from demo.sim import make_env
-from demo.sim.geometry import mat2quat, quat_angle
+from demo.sim.geometry import mat_to_quat, quat_angle
 from demo.sim.ik import ArmIK, IKParams
 
 # A posture cost small enough that its pull leaves the EE < 0.3 mm off target, large enough that
@@ -55,7 +55,7 @@ def test_placo_forward_kinematics_matches_mujoco(env) -> None:
         T = np.asarray(wrapper.get_T_world_frame(env.robot.ee_site))
         pos, quat = rt.fk(q)
         np.testing.assert_allclose(T[:3, 3], env.to_world(pos), atol=1e-9)
-        assert quat_angle(mat2quat(T[:3, :3]), env.quat_to_world(quat)) < 1e-5  # the MJCF stores quaternions to 7 digits
+        assert quat_angle(mat_to_quat(T[:3, :3]), env.quat_to_world(quat)) < 1e-5  # the MJCF stores quaternions to 7 digits
 
 
 def test_mink_and_placo_agree_on_100_random_reachable_targets(env) -> None:

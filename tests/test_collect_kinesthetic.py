@@ -11,8 +11,8 @@ import pytest
 from demo.collect.human_files import write_human_files
 from demo.collect.kinesthetic import JointTrack, collect_kinesthetic, parse_joint_csv, resample_joints
 from demo.collect.human import InputEpisode
-from demo.collect.scripted import episode_seed
 from demo.errors import DemoError
+from demo.seeds import episode_seed
 from demo.sim import load_robot
 from demo.store import EpisodeStore
 

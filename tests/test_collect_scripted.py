@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from demo.cli.main import main
-from demo.collect.scripted import CollectConfig, collect_scripted, episode_seed
+from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
+from demo.progress import Tick
+from demo.seeds import episode_seed
 from demo.store import EpisodeStore
 
 
@@ -59,15 +61,17 @@ def test_append_continues_the_seed_sequence(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_interrupt_keeps_finished_episodes(tmp_path: Path, workers: int) -> None:
-    seen = []
+    ticks: list[Tick] = []
 
-    def stop_after_two(index: int, info: dict, length: int) -> None:
-        seen.append(index)
-        if len(seen) == 2:
+    def stop_after_two(tick: Tick) -> None:
+        ticks.append(tick)
+        if tick.done == 2:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        collect_scripted(CollectConfig(task="reach", episodes=6), tmp_path / "s.zarr", workers=workers, on_episode=stop_after_two)
+        collect_scripted(CollectConfig(task="reach", episodes=6), tmp_path / "s.zarr", workers=workers, progress=stop_after_two)
+    assert [t.done for t in ticks] == [0, 1, 2] and {t.total for t in ticks} == {6}
+    assert ticks[0].stage == "collect reach" and ticks[-1].fields["frames"] > ticks[1].fields["frames"] > 0
     store = EpisodeStore.open(tmp_path / "s.zarr")
     assert 2 <= store.num_episodes < 6
     assert store.verify() == []

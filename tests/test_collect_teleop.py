@@ -188,3 +188,39 @@ def test_bad_mode_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> Non
     assert main(["teleop", "--mode", "haptic"]) == 1
     err = capsys.readouterr().err
     assert "error: --mode: unknown mode 'haptic'" in err.replace("\n", " ")
+
+
+def test_buttons_enable_only_what_the_state_allows(tmp_path: Path) -> None:
+    out = tmp_path / "t.zarr"
+    session = TeleopSession(TeleopConfig(mode="vr", task="reach", out=str(out), port=0), run_thread=False)
+    try:
+        def enabled() -> set[str]:
+            assert {n for n, b in session.buttons.items() if not b.disabled} == {n for n, ok in session.allowed().items() if ok}
+            return {n for n, ok in session.allowed().items() if ok}
+
+        open_or_close = {"open", "close"} & enabled()
+        assert {"start"} | open_or_close == enabled()  # nothing recorded: neither save nor discard
+        session.press("stop")
+        assert session.saved == 0 and "not now" in session.status_note
+        session.press("start")
+        for _ in range(3):
+            session.step()
+        assert enabled() >= {"discard"} and not enabled() & {"start", "stop"}  # recording, but no motion yet
+        pos, quat = session.ee_pose()
+        session.set_hand(pos + np.array([0.02, 0.0, 0.0]), quat)
+        session.step()
+        assert "stop" in enabled()
+        session.press("discard")
+        assert session.saved == 0 and not session.recording and not enabled() & {"stop", "discard"}
+        session.press("start")
+        session.press("close")
+        session.step()
+        assert "close" not in enabled() and {"open", "stop", "discard"} <= enabled()
+        session.press("close")  # already closed: ignored
+        assert "not now" in session.status_note
+        session.press("stop")
+        assert session.saved == 1 and "start" in enabled()
+    finally:
+        session.close()
+    with EpisodeStore.open(out) as store:
+        assert store.num_episodes == 1 and store.episode_lengths[0] == 1

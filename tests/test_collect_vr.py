@@ -12,7 +12,6 @@ import pytest
 
 from demo.collect.human import InputEpisode
 from demo.collect.human_files import TrackerFrame, write_human_files
-from demo.collect.scripted import episode_seed
 from demo.collect.vr import (
     Calibration,
     HandMapper,
@@ -25,6 +24,7 @@ from demo.collect.vr import (
     smooth,
 )
 from demo.errors import DemoError
+from demo.seeds import episode_seed
 from demo.sim.geometry import axis_angle_quat, quat_angle, quat_mul
 from demo.store import EpisodeStore
 

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from demo.convert import representations as reps
-from demo.convert import rotations as rot
 from demo.convert.adapter import ActionAdapter, make_adapter
 from demo.convert.context import RobotContext
 from demo.convert.convert import Converter
 from demo.convert.kinematics import Kinematics
 from demo.convert.representations import Anchor, Segments
+from demo.sim import geometry as rot
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,12 @@ import pytest
 
 from demo.cli.main import main
 from demo.convert import representations as reps
-from demo.convert import rotations as rot
 from demo.convert.check import round_trip
 from demo.convert.context import load_context
 from demo.convert.convert import ConvertOptions, Converter, convert_store, episode_anchors
 from demo.convert.representations import Segments
 from demo.errors import DemoError
+from demo.sim import geometry as rot
 from demo.store import ActionSpec, EpisodeStore
 
 
@@ -185,3 +185,15 @@ def test_cli(pick: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]):
     assert main(["convert", str(pick), "--to", "ee7"]) == 1  # nothing to do: no --out, --check or --round-trip
     assert main(["convert", str(pick), "--to", "ee7", "--out", str(out)]) == 1  # exists, no --overwrite
     assert "already exists" in capsys.readouterr().err
+
+
+def test_progress_ticks_count_frames_and_episodes(pick: Path, tmp_path: Path):
+    from demo.progress import Tick
+
+    ticks: list[Tick] = []
+    result = convert_store(pick, tmp_path / "jv.zarr", ConvertOptions(to="joint_vel"), progress=ticks.append)
+    assert {t.stage for t in ticks} == {"convert -> joint_vel"} and {t.total for t in ticks} == {result.frames}
+    assert ticks[0].done == 0 and ticks[-1].done == result.frames and ticks[-1].fields["episodes"] == 3
+    ticks.clear()
+    round_trip(pick, ConvertOptions(to="ee7"), episodes=[0, 2], progress=ticks.append)
+    assert [(t.stage, t.done, t.total) for t in ticks] == [("round trip", i, 2) for i in range(3)]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from demo.convert import rotations as rot
 from demo.convert.ik import IKConfig, IKSolver
 from demo.convert.kinematics import Kinematics
+from demo.sim import geometry as rot
 
 
 @pytest.fixture(scope="module")

@@ -8,9 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from demo.convert import rotations as rot
 from demo.convert.kinematics import Kinematics
 from demo.errors import DemoError
+from demo.sim import geometry as rot
 
 ARM7 = Path(__file__).parent / "assets" / "convert_arm7" / "robot.toml"
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from demo.convert import representations as reps
-from demo.convert import rotations as rot
 from demo.convert.representations import Anchor, JointTrack, PoseTrack, Segments
 from demo.errors import DemoError
+from demo.sim import geometry as rot
 
 JOINTS = tuple(f"j{i}" for i in range(7))
 FPS = 20.0

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from demo.convert import representations as reps
-from demo.convert import rotations as rot
 from demo.convert.check import replay_check, round_trip
 from demo.convert.context import load_context
 from demo.convert.convert import ConvertOptions, convert_store
+from demo.sim import geometry as rot
 from demo.store import EpisodeStore
 
 ARM7 = Path(__file__).parent / "assets" / "convert_arm7" / "robot.toml"

@@ -61,3 +61,13 @@ def test_camera_name() -> None:
     assert camera_name("obs.image_front") == "front"
     assert camera_name("obs.wrist") == "wrist"
     assert camera_name("obs.image_") == "image_"
+
+
+def test_track_reports_each_item_done() -> None:
+    from demo.interop.common import track
+    from demo.progress import Tick
+
+    ticks: list[Tick] = []
+    assert list(track("abc", 3, "export lerobot", ticks.append)) == ["a", "b", "c"]
+    assert [(t.stage, t.done, t.total) for t in ticks] == [("export lerobot", i, 3) for i in range(4)]
+    assert list(track("ab", 2, "import", None)) == ["a", "b"]  # no callback: silent

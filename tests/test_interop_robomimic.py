@@ -73,7 +73,7 @@ def test_round_trip_is_bit_exact(sample: Path, tmp_path: Path) -> None:
 
 def test_subset_and_cli(sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "train.hdf5"
-    assert main(["export", str(sample), "--format", "robomimic", "--out", str(out), "--episodes", "train"]) == 0
+    assert main(["export", str(sample), "--format", "robomimic", "--out", str(out), "--mask", "train"]) == 0
     assert "exported" in capsys.readouterr().out
     assert main(["import", str(out), "--out", str(tmp_path / "b.zarr")]) == 0  # format detected
     a, b = EpisodeStore.open(sample), EpisodeStore.open(tmp_path / "b.zarr")

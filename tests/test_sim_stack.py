@@ -20,7 +20,7 @@ def test_horizon_grows_linearly_with_blocks():
 def test_expert_stacks(blocks, seed):
     env = make_env("stack", blocks=blocks)
     r = run_expert(env, seed)
-    assert r.success and r.final_success
+    assert r.success
     obs = env.observe()
     pad = obs["obs.goal_pos"]
     for i, p in enumerate(obs["obs.object_pos"]):
@@ -49,7 +49,7 @@ def test_recovers_when_the_stack_is_knocked_over():
             knocked["t"] = t
 
     r = run_expert(env, 2, perturb=knock, max_steps=2 * env.horizon)
-    assert knocked and r.success and r.first_success > knocked["t"]
+    assert knocked and r.success and r.first_success_step > knocked["t"] + 1  # first held after a later step
 
 
 def test_parks_a_cube_held_out_of_order():
@@ -70,7 +70,7 @@ def test_parks_a_cube_held_out_of_order():
 
 def test_near_field_observations() -> None:
     """object_in_ee / object_to_place: offsets saturated at NEAR; object_yaw4: the relative yaw mod 90 deg."""
-    from demo.sim.geometry import quat2mat, yaw_of
+    from demo.sim.geometry import quat_to_mat, yaw_of
     from demo.sim.stack import NEAR
 
     env = make_env("stack", blocks=2)
@@ -79,7 +79,7 @@ def test_near_field_observations() -> None:
     ee_pos, ee_quat = env.ee_pose()
     pad = obs["obs.goal_pos"]
     for i, p in enumerate(obs["obs.object_pos"].astype(float)):
-        rel = quat2mat(ee_quat).T @ (p - ee_pos)
+        rel = quat_to_mat(ee_quat).T @ (p - ee_pos)
         np.testing.assert_allclose(obs["obs.object_in_ee"][i], NEAR * np.tanh(rel / NEAR), atol=1e-5)
         assert np.abs(obs["obs.object_to_place"][i]).max() <= NEAR
         assert abs(np.hypot(*obs["obs.object_yaw4"][i]) - 1) < 1e-5

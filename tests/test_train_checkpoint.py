@@ -14,7 +14,8 @@ import torch
 from demo.bench.load import build_store
 from demo.errors import DemoError
 from demo.train import checkpoint as ckpt
-from demo.train.bc import TrainConfig, train
+from demo.train.bc import train
+from demo.train.config import TrainConfig
 
 torch.set_num_threads(1)
 
@@ -24,8 +25,8 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tmp = tmp_path_factory.mktemp("ckpt")
     build_store(tmp / "data.zarr", frames=2000, episode_length=50, obs_dim=6, seed=0).close()
     config = TrainConfig(data=str(tmp / "data.zarr"), out=str(tmp / "run"), steps=60, batch_size=32, chunk=4, n_obs=2,
-                         ensemble=0.01, ema=0.9, policy={"hidden": (32, 32)}, include_failures=True, val_every=30)
-    train(config, progress=False)
+                         ensemble=True, ema=0.9, policy={"hidden": (32, 32)}, include_failures=True, val_every=30)
+    train(config)
     return tmp / "run"
 
 

@@ -13,7 +13,8 @@ from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.sim import make_env
 from demo.store import EpisodeStore
-from demo.train.bc import LABEL_KEY, TrainConfig
+from demo.train.config import TrainConfig
+from demo.train.data import LABEL_KEY, frame_indices, prepare
 from demo.train.dagger import DaggerConfig, train_dagger
 
 torch.set_num_threads(1)
@@ -31,7 +32,7 @@ def dagger(demos: Path, out: Path, **kw) -> dict:
     tc = TrainConfig(data=str(demos), out=str(out), steps=150, batch_size=64, chunk=2, policy={"hidden": (64, 64)},
                      val_fraction=0.25, log_every=50, val_every=50)
     config = DaggerConfig(train=tc, rounds=2, episodes_per_round=2, round_steps=60, **kw)
-    return train_dagger(config, progress=False)
+    return train_dagger(config)
 
 
 def test_dagger_aggregates_expert_labelled_states(demos: Path, tmp_path: Path) -> None:
@@ -105,7 +106,6 @@ def test_bad_schedules_and_tasks_fail_clearly(demos: Path, tmp_path: Path) -> No
 
 def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tmp_path: Path) -> None:
     """An early learner's flailing rollouts must not stretch the input ranges the states that matter live in."""
-    from demo.train import bc
     from demo.train.checkpoint import load_bundle
 
     dagger(demos, tmp_path / "keep")
@@ -113,17 +113,17 @@ def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tm
     keep, refit = load_bundle(tmp_path / "keep"), load_bundle(tmp_path / "refit")
     store = EpisodeStore.open(tmp_path / "keep" / "data.zarr")
     rounds = store.column("dagger_round")
-    tc = TrainConfig(data=str(tmp_path / "keep" / "data.zarr"), out="", val_fraction=0.25)
-    s0 = bc.setup(tc, store, among=np.flatnonzero(rounds == 0))
+    tc = TrainConfig(data=str(tmp_path / "keep" / "data.zarr"), out="", val_fraction=0.25).resolved()
+    s0 = prepare(tc, store, among=np.flatnonzero(rounds == 0))
     np.testing.assert_array_equal(keep.obs_norm.low, s0.obs_norm.low)
     np.testing.assert_array_equal(keep.obs_norm.high, s0.obs_norm.high)
     # Refit: the ranges are those of every training frame of the aggregate, rollouts included.
     from demo.train.normalizer import MinMaxNormalizer
 
     agg = EpisodeStore.open(tmp_path / "refit" / "data.zarr")
-    raw = bc.load_raw(agg, s0.obs_spec, s0.relative)
-    train_eps = np.union1d(s0.data.train_episodes, np.flatnonzero(agg.column("dagger_round") >= 1))
-    fitted = MinMaxNormalizer.fit(raw.obs[bc.frame_indices(raw.ends, train_eps)])
+    obs = s0.obs_spec.concat(agg.load(s0.obs_spec.source_keys)[0])
+    train_eps = np.union1d(s0.train_episodes, np.flatnonzero(agg.column("dagger_round") >= 1))
+    fitted = MinMaxNormalizer.fit(obs[frame_indices(agg.episode_ends, train_eps)])
     np.testing.assert_allclose(refit.obs_norm.low, fitted.low, atol=1e-6)
     assert (fitted.low < keep.obs_norm.low - 1e-3).any()  # the rollouts did leave the demonstrations' ranges
 

@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from demo.errors import DemoError
-from demo.train.diffusion import TRAIN_DEFAULTS, DiffusionConfig, DiffusionPolicy, with_sampler
+from demo.train.config import POLICY_DEFAULTS
+from demo.train.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
 from demo.train.policy import PolicySpec, build_policy
 
 H = 8
@@ -165,9 +166,10 @@ def test_cached_conditioning_is_exact(denoiser: str) -> None:
 
 
 def test_config_checks_and_defaults() -> None:
-    assert TRAIN_DEFAULTS["chunk"] == 16 and TRAIN_DEFAULTS["n_obs"] == 2 and TRAIN_DEFAULTS["execute"] == 8
+    defaults = POLICY_DEFAULTS["diffusion"]
+    assert defaults["chunk"] == 16 and defaults["n_obs"] == 2 and defaults["execute"] == 4 and defaults["steps"] == 16000
     assert DiffusionConfig().train_steps == 100 and DiffusionConfig(large=True).net_channels == (256, 512, 1024)
-    assert TRAIN_DEFAULTS["ensemble"] is None  # averaging chunks across modes is what diffusion avoids
+    assert defaults["ensemble"] is False  # averaging chunks across modes is what diffusion avoids
     for bad in ({"prediction": "v"}, {"sampler": "euler"}, {"inference_steps": 0}, {"inference_steps": 101},
                 {"channels": (30,)}, {"spacing": "cubic"}, {"denoiser": "transformer"}):
         with pytest.raises(DemoError):
@@ -180,7 +182,8 @@ def test_trained_run_round_trip(tmp_path) -> None:
     """demo train's run directory: the saved policy is the EMA of training and samples identically."""
     from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
     from demo.train import checkpoint as ckpt
-    from demo.train.diffusion import train, train_config
+    from demo.train.bc import train
+    from demo.train.config import for_policy
 
     meta = StoreMeta(fps=20.0, features={"obs.c": FeatureSpec((2,), "float32", "toy condition")},
                      action=ActionSpec("joint_pos", ("a", "b"), ("rad", "rad")), task={"name": "toy"})
@@ -191,9 +194,9 @@ def test_trained_run_round_trip(tmp_path) -> None:
         store.append_episode({"obs.c": obs[0].expand(H, 2).numpy().copy(), "action": action[0].numpy()}, success=True)
     store.close()
     out = tmp_path / "run"
-    config = train_config(data=str(tmp_path / "toy.zarr"), out=str(out), steps=30, batch_size=16, warmup_steps=2,
+    config = for_policy("diffusion", data=str(tmp_path / "toy.zarr"), out=str(out), steps=30, batch_size=16, warmup_steps=2,
                           val_fraction=0.0, chunk=H, execute=4, log_every=10, policy=dict(TINY["mlp"]))
-    train(config, progress=False)
+    train(config)
     bundle = ckpt.load_bundle(out)
     assert bundle.algo == "diffusion" and bundle.execution.execute == 4 and bundle.execution.ensemble is None
     ema = build_policy("diffusion", bundle.policy.spec, bundle.policy.config)

@@ -48,24 +48,25 @@ def test_classify_sides() -> None:
     assert classify(left[:5], obstacle) == "none"  # never got past the obstacle
 
 
-def test_bench_multimodal_end_to_end(tmp_path) -> None:
+def test_bench_multimodal_end_to_end(tmp_path, capfd) -> None:
     """Collect a few avoid demos, train diffusion and BC briefly, compare their paths: JSON + PNG (the CLI)."""
     from demo.cli.main import main
     from demo.collect.scripted import CollectConfig, collect_scripted
-    from demo.train.bc import TrainConfig, train
-    from demo.train.diffusion import train_config
+    from demo.train.bc import train
+    from demo.train.config import TrainConfig
 
     data = tmp_path / "avoid.zarr"
     collect_scripted(CollectConfig(task="avoid", episodes=4, seed=0), data)
     common = dict(data=str(data), steps=20, batch_size=16, warmup_steps=2, val_fraction=0.0, log_every=10)
-    train(train_config(out=str(tmp_path / "diffusion"), policy={"denoiser": "mlp", "width": 32, "depth": 1,
-                                                                   "inference_steps": 2}, **common), progress=False)
-    train(TrainConfig(out=str(tmp_path / "bc"), algo="bc", policy={"hidden": (16,)}, **common), progress=False)
-    png, out = tmp_path / "modes.png", tmp_path / "modes.json"
+    train(TrainConfig(algo="diffusion", out=str(tmp_path / "diffusion"), policy={"denoiser": "mlp", "width": 32, "depth": 1,
+                                                                   "inference_steps": 2}, **common))
+    train(TrainConfig(out=str(tmp_path / "bc"), algo="bc", policy={"hidden": (16,)}, **common))
+    png = tmp_path / "modes.png"
+    capfd.readouterr()
     rc = main(["bench", "multimodal", "--diffusion", str(tmp_path / "diffusion"), "--reference", str(tmp_path / "bc"),
-               "--starts", "2", "--samples", "2", "--png", str(png), "--json", str(out)])
+               "--starts", "2", "--samples", "2", "--png", str(png), "--json", "-"])
     assert rc == 0 and png.stat().st_size > 10_000
-    r = json.loads(out.read_text())
+    r = json.loads(capfd.readouterr().out)  # with --json -, stdout holds the JSON alone
     for side in ("figure", "reference"):
         s = r[side]
         assert s["episodes"] == 4 and sum(s["modes"].values()) == 4 and 0 <= s["success_rate"] <= 1

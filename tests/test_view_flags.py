@@ -30,3 +30,31 @@ def test_labels_details_and_table(tmp_path: Path) -> None:
     assert [r.split("|")[1].strip() for r in rows] == ["5", "6", "7", "**8**"]
     assert "episodes 5-8 of 9" in table
     assert np.array_equal(flags.masks["empty"], np.zeros(9, bool))
+
+
+def test_curation_drop_reasons_are_shown(tmp_path: Path) -> None:
+    from demo.curate import synthetic
+    from demo.curate.curate import curate
+
+    episodes = synthetic.mixed_episodes(12, seed=2)
+    episodes[0][1]["success"] = False
+    path = synthetic.write_store(tmp_path / "mixed.zarr", episodes)
+    with EpisodeStore.open(path) as store:
+        assert EpisodeFlags(store).reasons is None  # never curated: no "kept"/"dropped" claims
+    curation = curate(path, mask="curated")
+    store = EpisodeStore.open(path)
+    flags = EpisodeFlags(store)
+    dropped = [i for i in range(flags.n) if not curation.kept[i]]
+    assert 0 in dropped and len(dropped) < flags.n
+    for i in range(flags.n):
+        details = flags.details(i)
+        if i in dropped:
+            assert flags.dropped_for(i) == "; ".join(curation.reasons[i]) != ""
+            assert f"curation **dropped** it: {flags.dropped_for(i)}" in details
+            assert " dropped: " in flags.label(i)
+        else:
+            assert flags.dropped_for(i) == "" and "curation kept it" in details and "dropped" not in flags.label(i)
+    assert "failed" in flags.dropped_for(0)
+    header = flags.table(around=0).splitlines()[0]
+    assert "dropped for" in header
+    store.close()

@@ -11,6 +11,7 @@
                            plain tensors and containers only, read with torch.load(weights_only=True)
       metrics.json         loss and success curves, final figures
       curves.png           the same as a plot
+      robot/               the robot's MJCF and asset files (a non-built-in robot; see save_robot)
 
 No file is ever unpickled: ``policy.safetensors`` is read by safetensors (a pickle is not a valid
 file), ``train_state.pt`` by ``torch.load(weights_only=True)``, whose restricted unpickler refuses
@@ -21,7 +22,6 @@ temporary name and renamed, so an interrupted save never leaves a half-written c
 from __future__ import annotations
 
 import json
-import os
 import pickle
 import time
 import warnings
@@ -34,7 +34,9 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from demo.errors import DemoError
+from demo.jsonio import replace_atomically, write_json
 from demo.store import ActionSpec
+from demo.store.robot_files import copy_robot_files, file_table
 from demo.train.actor import ExecConfig, PolicyActor
 from demo.train.normalizer import MinMaxNormalizer
 from demo.train.observation import ObsSpec
@@ -94,18 +96,6 @@ def policy_record(
     }
 
 
-def _atomic(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
-def write_json(path: Path, obj: dict[str, Any]) -> None:
-    from demo.cli.output import dumps
-
-    _atomic(Path(path), lambda tmp: tmp.write_text(dumps(obj) + "\n"))
-
-
 def read_json(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
@@ -140,6 +130,29 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
     return run
 
 
+def run_robot(record: dict[str, Any] | None, store_path: str | Path, override: str | Path | None = None) -> dict[str, Any] | None:
+    """The robot record a run trained on the store at ``store_path`` keeps (``run.json["robot"]``).
+
+    ``record``: the store's ``meta.robot``; ``override``: a robot config (``--robot``) that replaces
+    it. A store that records robot files which cannot be found fails here, before anything is
+    written, with one line naming the missing file; the built-in arm and records without files pass.
+    """
+    from demo.sim.robot_record import resolve_robot, robot_record
+
+    if override is not None:
+        return robot_record(resolve_robot(record, override))
+    if file_table(record, store_path):
+        resolve_robot(record, where=store_path)
+    return record
+
+
+def save_robot(run_dir: str | Path, record: dict[str, Any] | None, store_path: str | Path) -> None:
+    """Copy the robot's files (of :func:`run_robot`'s ``record``) into ``run_dir/robot/`` (staged,
+    then renamed) so that the run alone evaluates after it is moved."""
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    copy_robot_files(record, store_path, run_dir)
+
+
 def save_policy(
     run_dir: str | Path, weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer, action_norm: MinMaxNormalizer
 ) -> None:
@@ -148,7 +161,7 @@ def save_policy(
     tensors.update(obs_norm.state_dict("normalizer.obs"))
     tensors.update(action_norm.state_dict("normalizer.action"))
     path = Path(run_dir) / POLICY_FILE
-    _atomic(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+    replace_atomically(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
 
 
 def load_bundle(run_dir: str | Path) -> PolicyBundle:
@@ -190,7 +203,7 @@ def load_bundle(run_dir: str | Path) -> PolicyBundle:
 def save_train_state(run_dir: str | Path, state: dict[str, Any]) -> None:
     """Write the resume state (tensors, numbers, strings, lists and dicts only)."""
     path = Path(run_dir) / STATE_FILE
-    _atomic(path, lambda tmp: torch.save(state, tmp))
+    replace_atomically(path, lambda tmp: torch.save(state, tmp))
 
 
 def load_train_state(run_dir: str | Path) -> dict[str, Any]:

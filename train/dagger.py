@@ -4,8 +4,8 @@
 
 0. DATA's episodes are copied into the run's own store ``RUN/data.zarr`` (DATA is never modified),
    with a per-frame flag ``info.labelled``; round 0 trains behaviour cloning on them exactly as
-   ``--algo bc`` would (:mod:`demo.train.bc`).
-1. Round ``r = 1..R`` rolls out ``K`` episodes (seeds: :mod:`demo.train.seeds`) of the mixture
+   ``--algo bc`` would (the shared :class:`demo.train.trainer.TrainingRun`).
+1. Round ``r = 1..R`` rolls out ``K`` episodes (seeds: :mod:`demo.seeds`) of the mixture
    policy: at every step the expert is asked for its action on the visited state (the task experts
    are state-feedback policies, so any state can be labelled), and the executed action is the
    expert's with probability ``beta_r``, else the learner's. ``--beta``:
@@ -32,34 +32,39 @@
 
 Expert labels are counted: every frame of DATA's episodes that training used (validation
 included) plus every labelled frame of every round, so comparisons with BC can be made at equal
-label budgets (``metrics.json`` ``rounds[*].labels_total``). DART-style data (``demo collect
---noise``: noise on the executed action, clean labels) trains with ``--algo bc`` and the same
+label budgets (``metrics.json`` ``rounds[*].labels_total``). DART-style data (collected with
+``--noise``: noise on the executed action, clean labels) trains with ``--algo bc`` and the same
 label accounting.
 
 ``--resume`` continues at the round where a run stopped (a round's rollouts already in the store
 are reused, not repeated).
+
+The learner is BC's policy, single-step unless told otherwise (:data:`demo.train.config.DAGGER_DEFAULTS`).
+Everything else of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
+:class:`demo.train.trainer.TrainingRun`'s; this file holds only what is DAgger's own.
 """
 
 from __future__ import annotations
 
-import json
-import time
+import dataclasses
+from contextlib import closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from demo.collect.rollout import StepCommand, rollout
 from demo.errors import DemoError
+from demo.progress import Progress
+from demo.seeds import dagger_seeds
+from demo.sim.rollout import StepCommand, rollout
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
-from demo.train import bc
 from demo.train import checkpoint as ckpt
+from demo.train.config import DAGGER_DEFAULTS, TrainConfig, for_policy
+from demo.train.data import LABEL_KEY, TrainingData, prepare
 from demo.train.evaluate import make_actor, single_thread
-from demo.train.policy import build_policy, policy_config
-from demo.train.progress import TrainProgress
-from demo.train.seeds import dagger_seeds
+from demo.train.optim import Learner
+from demo.train.trainer import TrainingRun
 
 DATA_DIR = "data.zarr"
 GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 closed) from the expert's is a deviation
@@ -69,7 +74,7 @@ GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 clos
 class DaggerConfig:
     """DAgger's own hyperparameters; ``train`` holds round 0's (and the optimiser's)."""
 
-    train: bc.TrainConfig = field(default_factory=bc.TrainConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
     task: str | None = None  # must be the data's task (default)
     rounds: int = 5
     episodes_per_round: int = 10
@@ -124,26 +129,34 @@ class DaggerConfig:
         return d
 
 
+def learner_config(**given: Any) -> TrainConfig:
+    """The learner's resolved config: ``given`` values, then :data:`DAGGER_DEFAULTS`, then the policy's."""
+    given = {k: v for k, v in given.items() if v is not None}
+    return for_policy(given.pop("algo", "bc"), **{**DAGGER_DEFAULTS, **given})
+
+
 # ================================================================================== the aggregate store
 def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
     """A copy of ``source`` with the per-frame ``info.labelled`` flag (all True for its episodes)."""
     meta = StoreMeta.from_json(source.meta.to_json())
-    meta.features[bc.LABEL_KEY] = FeatureSpec((), "uint8", "1 where the action is an expert label", "")
+    meta.features[LABEL_KEY] = FeatureSpec((), "uint8", "1 where the action is an expert label", "")
     meta.provenance = [*meta.provenance, {"op": "dagger", "from": str(source.path), "time": ckpt.now()}]
-    out = EpisodeStore.create(path, meta, overwrite=True)
+    out = EpisodeStore.create(path, meta, overwrite=True, robot_from=source.path)
     skip = {"episode_index", "start", "length", "duration_s", "crc32"}
     batch = []
     for index, data in source.iter_episodes():
         info = {k: v for k, v in source.episode_info(index).items() if k not in skip}
         info["dagger_round"] = 0
         info["labels"] = len(data["action"])
-        batch.append(({**data, bc.LABEL_KEY: np.ones(len(data["action"]), np.uint8)}, info))
+        batch.append(({**data, LABEL_KEY: np.ones(len(data["action"]), np.uint8)}, info))
     out.append_episodes(batch)
     return out
 
 
-def make_env_for_store(store: EpisodeStore, task: str | None) -> Any:
+def make_env_for_store(store: EpisodeStore, task: str | None, robot: str | None = None) -> Any:
+    """The store's task with its robot (``robot``: a config that replaces the recorded one)."""
     from demo.sim import make_env
+    from demo.sim.robot_record import resolve_robot
 
     t = store.meta.task or {}
     name = t.get("name")
@@ -152,8 +165,7 @@ def make_env_for_store(store: EpisodeStore, task: str | None) -> Any:
     task = task or name
     if not task:
         raise DemoError(store.path, "records no task; pass --task")
-    robot = (store.meta.robot or {}).get("config")
-    env = make_env(task, robot=None if robot in (None, "builtin") else robot, **(t.get("options") or {}))
+    env = make_env(task, robot=resolve_robot(store.meta.robot, robot, where=store.path), **(t.get("options") or {}))
     if env.action_spec.name != store.meta.action.name or env.action_spec.dim != store.meta.action.dim:
         env.close()
         raise DemoError(
@@ -199,7 +211,7 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | N
 
     episode = rollout(env, seed, act, reset=False)
     data = dict(episode.data)
-    data[bc.LABEL_KEY] = np.asarray(labelled, dtype=np.uint8)
+    data[LABEL_KEY] = np.asarray(labelled, dtype=np.uint8)
     info = {
         "success": episode.success,
         "seed": seed,
@@ -214,181 +226,113 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | N
 
 
 # ================================================================================== the run
-def train_dagger(config: DaggerConfig, *, progress: bool = True, resume: bool = False, overwrite: bool = False,
-                 command: str | None = None) -> dict[str, Any]:
+def train_dagger(config: DaggerConfig, *, progress: Progress | None = None, resume: bool = False,
+                 overwrite: bool = False, command: str | None = None) -> dict[str, Any]:
+    """Round 0 (BC on the demonstrations), then ``rounds`` of expert-labelled rollouts + retraining."""
+    tc = config.train = learner_config(**config.train.given())
     config.check()
-    tc = config.train
-    policy_config(tc.algo, tc.policy)
-    out = Path(tc.out)
-    if tc.threads > 0:
-        torch.set_num_threads(tc.threads)
-    torch.manual_seed(tc.seed)
-    rng = np.random.default_rng([tc.seed, 0xB0C])
     gate = config.gate_threshold()
     source_path = Path(tc.data)
+    total_steps = tc.steps + config.rounds * config.round_steps
+    run = TrainingRun(tc, progress=progress, resume=resume, overwrite=overwrite, command=command,
+                      total_steps=total_steps, name="dagger", title=f"dagger ({tc.algo}) on {source_path.name}")
 
-    # ---- 0. the aggregate store and the environment
-    bc.prepare_run_dir(out, resume, overwrite)
-    agg_path = out / DATA_DIR
+    # ---- 0. the aggregate store (in the run directory) and the environment
+    with EpisodeStore.open(source_path) as source:
+        make_env_for_store(source, config.task, tc.robot).close()  # a wrong task fails before anything is written
+    run.open_directory()
+    agg_path = run.out / DATA_DIR
     if resume:
         store = EpisodeStore.open(agg_path, "a")
     else:
         with EpisodeStore.open(source_path) as source:
             store = create_aggregate(source, agg_path)
-    try:
-        env = make_env_for_store(store, config.task)
-    except DemoError:
-        store.close()
-        raise
-    features = {k for k in store.meta.features if k != bc.LABEL_KEY}
-    recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
-    if features != recorded:
-        env.close()
-        store.close()
-        raise DemoError(source_path, f"records {sorted(features)}; DAgger rollouts record {sorted(recorded)}")
-    n_arm = len(env.robot.arm_joints)
+    with run, store, closing(make_env_for_store(store, config.task, tc.robot)) as env:
+        features = {k for k in store.meta.features if k != LABEL_KEY}
+        recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
+        if features != recorded:
+            raise DemoError(source_path, f"records {sorted(features)}; DAgger rollouts record {sorted(recorded)}")
+        n_arm = len(env.robot.arm_joints)
 
-    # ---- round 0: behaviour cloning on the demonstrations (the data in the aggregate store)
-    round0 = bc.TrainConfig(**{**asdict(tc), "data": str(agg_path)})
-    demos = np.flatnonzero(store.column("dagger_round") == 0)
-    s0 = bc.setup(round0, store, among=demos)
-    demo_train, demo_val = s0.data.train_episodes, s0.data.val_episodes
-    execution = bc.execution_config(tc, store.meta.action)
-    demo_labels = s0.data.frames(np.union1d(demo_train, demo_val))
+        # ---- the demonstrations: round 0's data and normalisers (kept for every round unless refit)
+        round0 = dataclasses.replace(tc, data=str(agg_path))
+        demos = prepare(round0, store, among=np.flatnonzero(store.column("dagger_round") == 0))
+        demo_val = demos.val_episodes
+        demo_labels = demos.frames(np.union1d(demos.train_episodes, demo_val))
 
-    def round_episodes(r: int) -> np.ndarray:
-        rounds_col = store.column("dagger_round")
-        return np.union1d(demo_train, np.flatnonzero((rounds_col >= 1) & (rounds_col <= r)))
+        def round_data(r: int) -> TrainingData:
+            """Training data of the learner trained after round ``r``: demonstrations + rounds 1..r."""
+            if r == 0:
+                return demos
+            rounds_col = store.column("dagger_round")
+            episodes = np.union1d(demos.train_episodes, np.flatnonzero((rounds_col >= 1) & (rounds_col <= r)))
+            if config.warm_start or not config.refit_normalizers:
+                return demos.reload(store, episodes, demo_val)
+            return prepare(round0, store, split=(episodes, demo_val))
 
-    def round_setup(r: int) -> bc.Setup:
-        """Data and normalisers of the learner trained after round ``r``."""
-        if r == 0:
-            return s0
-        if config.warm_start or not config.refit_normalizers:
-            data = bc.load_raw(store, s0.obs_spec, s0.relative).dataset(s0.obs_norm, s0.action_norm, round_episodes(r), demo_val)
-            return bc.Setup(data, s0.obs_spec, s0.obs_norm, s0.action_norm, s0.relative, s0.spec)
-        return bc.setup(round0, store, split=(round_episodes(r), demo_val))
+        def new_learner(data: TrainingData, r: int, step: int) -> Learner:
+            return run.new_learner(data, step, tc.steps if r == 0 else config.round_steps, seed=tc.seed + 1000 * r)
 
-    def new_learner(setup: bc.Setup, r: int, step: int) -> bc.Learner:
-        torch.manual_seed(tc.seed + 1000 * r)
-        fresh = bc.make_learner(build_policy(tc.algo, setup.spec, policy_config(tc.algo, tc.policy)), tc)
-        fresh.step = fresh.phase_start = step
-        fresh.phase_steps = tc.steps if r == 0 else config.round_steps
-        return fresh
+        def labels_so_far(r: int) -> int:
+            rounds_col, labels = store.column("dagger_round"), store.column("labels")
+            return demo_labels + int(labels[(rounds_col >= 1) & (rounds_col <= r)].sum())
 
-    s = s0
-    learner = new_learner(s0, 0, 0)
-    record = {"name": "dagger", **config.to_json(), "source_data": str(source_path.resolve())}
-    run = bc.run_record(round0, store, s0, learner.policy, execution, command, record)
-    metrics: dict[str, Any] = {"train_loss": [], "val_loss": [], "eval": [], "rounds": []}
-    done_round, round_done = 0, False
-    if resume:
-        state = ckpt.load_train_state(out)
-        extra = json.loads(state.get("extra", "{}"))
-        done_round, round_done = int(extra.get("round", 0)), bool(extra.get("round_done", False))
-        if not round_done:
-            raise DemoError(out, "was interrupted inside a round; start it again without --resume")
-        s = round_setup(done_round)
-        learner = new_learner(s, done_round, 0)
-        metrics = bc.restore(learner, state, rng, out)
-        run["created"] = ckpt.read_run(out).get("created", run["created"])
-    ckpt.write_run(out, run)
+        data = demos
+        learner = new_learner(demos, 0, 0)
+        run.begin(store, demos, learner, {"name": "dagger", **config.to_json(), "source_data": str(source_path.resolve())})
+        run.metrics["rounds"] = []
+        done_round = -1
+        if resume:
+            saved = run.saved_extra()
+            if not saved.get("round_done", False):
+                raise DemoError(run.out, "was interrupted inside a round; start it again without --resume")
+            done_round = int(saved.get("round", 0))
+            data = round_data(done_round)
+            learner = new_learner(data, done_round, 0)
+            run.attach(learner, data)
+            run.restore(learner)
 
-    monitor = bc.Monitor(tc.eval_episodes, tc.seed) if (tc.eval_every or tc.eval_final) else None
-    title = f"dagger ({tc.algo}) on {source_path.name}"
-    total_steps = tc.steps + config.rounds * config.round_steps
-    start = time.perf_counter()
+        # ---- round 0: behaviour cloning on the demonstrations
+        if done_round < 0:
+            run.fit(demos.windows(demos.train_episodes), tc.steps)
+            run.metrics["rounds"].append(_round_entry(0, 0.0, [], demo_labels, demo_labels, learner.step, run.evaluate()))
+            run.checkpoint({"round": 0, "round_done": True})
+        # ---- rounds 1..R: roll out, aggregate, retrain
+        for r in range(max(done_round, 0) + 1, config.rounds + 1):
+            beta = config.beta_at(r)
+            existing = np.flatnonzero(store.column("dagger_round") == r)  # reused after an interruption
+            infos = [store.episode_info(int(i)) for i in existing]
+            actor = make_actor(run.bundle(), env, run.execution)
+            with single_thread():
+                for k, seed in enumerate(dagger_seeds(tc.seed, r, config.episodes_per_round)[len(existing):]):
+                    run.tick(info=f"round {r}: rollout {len(existing) + k + 1}/{config.episodes_per_round}")
+                    episode, info = dagger_episode(env, actor, seed, beta, gate, n_arm)
+                    info.update(task=store.meta.task.get("name", ""), dagger_round=r)
+                    store.append_episode(episode, **info)
+                    infos.append(info)
+            data = round_data(r)
+            if config.warm_start:
+                learner.phase_start, learner.phase_steps = learner.step, config.round_steps
+                run.attach(learner, data)
+            else:
+                learner = new_learner(data, r, learner.step)
+                run.attach(learner, data)
+            run.fit(data.windows(data.train_episodes), learner.step + config.round_steps, demos.validation_batch(tc.seed))
+            entry = run.evaluate()
+            labels_round = int(sum(int(i["labels"]) for i in infos))
+            last = _round_entry(r, beta, infos, labels_round, labels_so_far(r), learner.step, entry)
+            run.metrics["rounds"].append(last)
+            run.checkpoint({"round": r, "round_done": True})
+            run.tick(message=f"round {r}: beta {beta:.2f}, rollout success {last['rollout_success']:.0%}, "
+                             f"labels {last['labels_round']} (total {last['labels_total']})"
+                             + (f", eval success {entry['success_rate']:.0%}" if entry else ""))
 
-    def bundle() -> ckpt.PolicyBundle:
-        return bc.bundle_of(learner, s, store.meta.action, execution, run, out)
-
-    def checkpoint(r: int, finished: bool) -> None:
-        bc.save(out, learner, s.obs_norm, s.action_norm, rng, metrics, {"round": r, "round_done": finished}, title)
-
-    def evaluate_now() -> dict[str, Any] | None:
-        if monitor is None:
-            return None
-        result = monitor(bundle())
-        entry = {"step": learner.step, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
-        metrics["eval"].append(entry)
-        bar.update(learner.step, success=f"{result['successes']}/{result['episodes']}")
-        return entry
-
-    def labels_so_far(r: int) -> int:
-        rounds = store.column("dagger_round")
-        lab = store.column("labels")
-        return demo_labels + int(lab[(rounds >= 1) & (rounds <= r)].sum())
-
-    try:
-        with TrainProgress(total_steps, "train dagger", progress, learner.step) as bar:
-            # ---- round 0
-            if not (done_round > 0 or round_done):
-                bc.fit(learner, bc.BatchSource(s0.data, demo_train, tc.n_obs, tc.chunk), tc.steps, rng, metrics,
-                       _val(s0.data, demo_val, tc), bar, None)
-                entry = evaluate_now()
-                metrics["rounds"].append(_round_entry(0, 0.0, [], demo_labels, demo_labels, learner.step, entry))
-                done_round, round_done = 0, True
-                checkpoint(0, True)
-            # ---- rounds 1..R
-            for r in range(done_round + 1, config.rounds + 1):
-                beta = config.beta_at(r)
-                existing = np.flatnonzero(store.column("dagger_round") == r)
-                infos = [store.episode_info(int(i)) for i in existing]
-                if len(existing) < config.episodes_per_round:
-                    actor = make_actor(bundle(), env, execution)
-                    seeds = dagger_seeds(tc.seed, r, config.episodes_per_round)[len(existing):]
-                    with single_thread():
-                        for k, seed in enumerate(seeds):
-                            bar.update(info=f"round {r}: rollout {len(existing) + k + 1}/{config.episodes_per_round}")
-                            ep_data, info = dagger_episode(env, actor, seed, beta, gate, n_arm)
-                            info.update(task=store.meta.task.get("name", ""), dagger_round=r)
-                            store.append_episode(ep_data, **info)
-                            infos.append(info)
-                # ---- train on the aggregate
-                s = round_setup(r)
-                if config.warm_start:
-                    learner.phase_start, learner.phase_steps = learner.step, config.round_steps
-                else:
-                    learner = new_learner(s, r, learner.step)
-                train_eps = s.data.train_episodes
-                bc.fit(learner, bc.BatchSource(s.data, train_eps, tc.n_obs, tc.chunk), learner.step + config.round_steps,
-                       rng, metrics, _val(s.data, demo_val, tc), bar, None)
-                entry = evaluate_now()
-                labels_round = int(sum(int(i["labels"]) for i in infos))
-                metrics["rounds"].append(_round_entry(r, beta, infos, labels_round, labels_so_far(r), learner.step, entry))
-                checkpoint(r, True)
-                if progress:
-                    last = metrics["rounds"][-1]
-                    bar.log(f"round {r}: beta {beta:.2f}, rollout success {last['rollout_success']:.0%}, "
-                            f"labels {last['labels_round']} (total {last['labels_total']})"
-                            + (f", eval success {entry['success_rate']:.0%}" if entry else ""))
-    finally:
-        if monitor:
-            monitor.close()
-        env.close()
-    total_labels = labels_so_far(config.rounds)
-    n_episodes = store.num_episodes
-    all_seeds = [int(x) for x in store.column("seed") if int(x) >= 0]
-    store.close()
-    metrics["final"] = {
-        "step": learner.step,
-        "train_loss": metrics["train_loss"][-1][1] if metrics["train_loss"] else None,
-        "val_loss": metrics["val_loss"][-1][1] if metrics["val_loss"] else None,
-        "success_rate": metrics["eval"][-1]["success_rate"] if metrics["eval"] else None,
-        "seconds": time.perf_counter() - start,
-        "expert_labels": total_labels,
-        "demo_labels": demo_labels,
-        "episodes": n_episodes,
-    }
-    run["data"]["expert_labels"] = total_labels
-    run["data"]["seeds"] = all_seeds
-    ckpt.write_run(out, run)
-    bc.save(out, learner, s.obs_norm, s.action_norm, rng, metrics, {"round": config.rounds, "round_done": True}, title)
-    return {"out": str(out), "algo": "dagger", **metrics["final"], "rounds": metrics["rounds"]}
-
-
-def _val(data: bc.Dataset, val_eps: np.ndarray, tc: bc.TrainConfig) -> Any:
-    return bc.BatchSource(data, val_eps, tc.n_obs, tc.chunk).fixed(4096, tc.seed)
+        total_labels = labels_so_far(config.rounds)
+        run.record["data"]["expert_labels"] = total_labels
+        run.record["data"]["seeds"] = [int(x) for x in store.column("seed") if int(x) >= 0]
+        summary = run.finish({"round": config.rounds, "round_done": True}, demo_labels=demo_labels,
+                             episodes=store.num_episodes)
+    return {**summary, "algo": "dagger", "rounds": run.metrics["rounds"]}
 
 
 def _round_entry(r: int, beta: float, infos: list[dict[str, Any]], labels_round: int, labels_total: int, step: int,

@@ -4,8 +4,8 @@ observation history. ``demo train DATA --algo diffusion``.
 Reads top to bottom:
 
 1. :class:`DiffusionConfig`: every hyperparameter of the policy (denoiser and its size, noise
-   schedule, prediction target, sampler); :data:`TRAIN_DEFAULTS`: the training-loop settings it is
-   trained with (horizon 16, n_obs 2, execute 8, AdamW, EMA), applied unless the user overrides them.
+   schedule, prediction target, sampler). The training-loop settings it is trained with (horizon
+   16, n_obs 2, execute 4, 16,000 steps, AdamW, EMA) are in :data:`demo.train.config.POLICY_DEFAULTS`.
 2. :meth:`DiffusionPolicy.loss`: forward noising. A clean normalised chunk ``x0`` (actions
    min-max normalised to [-1, 1] by the shared pipeline) is noised to a random timestep ``t`` of
    the 100-step squared-cosine DDPM schedule (:mod:`demo.train.noise_scheduler`); the denoiser
@@ -18,9 +18,10 @@ Reads top to bottom:
    (all 100 steps: the published reference). The observation part of the conditioning is computed
    once per chunk, the timestep part once per sampler configuration, and the rest of the denoiser
    is traced and frozen (TorchScript) on first use, so a denoising step costs that rest only.
-4. :func:`train`: the shared behaviour-cloning loop of :mod:`demo.train.bc` (data pipeline,
-   AdamW with warm-up + cosine, EMA, validation, progress bar, checkpoints, plots, periodic rollouts)
-   with the defaults of (1): diffusion brings a loss and a sampler, nothing else.
+Training is behaviour cloning's (:func:`demo.train.bc.train` on the shared
+:class:`demo.train.trainer.TrainingRun`: data pipeline, AdamW with warm-up + cosine, EMA, validation,
+progress, checkpoints, plots, periodic rollouts) with the defaults of (1): diffusion brings a loss
+and a sampler, nothing else.
 
 Execution is the shared receding-horizon executor (:mod:`demo.train.actor`): a chunk of
 ``horizon`` actions is sampled every ``execute`` steps, never temporally ensembled. Step 0 of a
@@ -108,29 +109,6 @@ class DiffusionConfig:
         return LARGE if self.large else self.channels
 
 
-# The training-loop settings diffusion is trained with (fields of demo.train.bc.TrainConfig):
-# Diffusion Policy's horizon 16 / n_obs 2 / execute 8 and AdamW with warm-up + cosine, with a learning
-# rate and EMA for runs of ~10^4 steps on a CPU (published: 1e-4 and EMA to 0.9999 over ~10^6 steps).
-TRAIN_DEFAULTS: dict[str, Any] = {
-    "chunk": 16,  # horizon
-    "n_obs": 2,
-    # pick (100 demos): 96%. avoid (200 paired demos, 16000 steps), whose demonstrations pass the
-    # obstacle 2 cm away: execute 4 gives 94%/93% (training seeds 0/1), execute 8 91%/93%
-    "execute": 8,
-    # never temporal ensembling: averaging overlapping chunks that went to different modes is the
-    # very mode averaging diffusion is there to avoid
-    "ensemble": None,
-    "lr": 1e-3,
-    "weight_decay": 1e-6,
-    "warmup_steps": 500,
-    "ema": 0.995,
-    "batch_size": 256,
-    # ~12 min of one CPU core; pick reached only 90% after 6000 steps; avoid (200 demos) reached
-    # 80-90% over 4 seeds, hence --steps 16000 there
-    "steps": 8000,
-}
-
-
 # ================================================================================== 2-3. the policy
 class _Denoiser(nn.Module):
     """The denoiser without its conditioning (``net.denoise``), as a module to trace."""
@@ -146,7 +124,6 @@ class _Denoiser(nn.Module):
 @register_policy("diffusion")
 class DiffusionPolicy(Policy):
     Config = DiffusionConfig
-    TRAIN_DEFAULTS = TRAIN_DEFAULTS
 
     def __init__(self, spec: PolicySpec, config: DiffusionConfig):
         super().__init__(spec, config)
@@ -253,18 +230,3 @@ def with_sampler(policy: DiffusionPolicy, steps: int | None = None, sampler: str
     changes = {k: v for k, v in {"inference_steps": steps, "sampler": sampler, "spacing": spacing, "jit": jit}.items() if v is not None}
     policy.config = dataclasses.replace(policy.config, **changes)
     return policy
-
-
-# ================================================================================== 4. training
-def train_config(**overrides: Any) -> Any:
-    """A :class:`demo.train.bc.TrainConfig` for diffusion: :data:`TRAIN_DEFAULTS` + ``overrides``."""
-    from demo.train.bc import TrainConfig
-
-    return TrainConfig(**{"algo": "diffusion", **TRAIN_DEFAULTS, **overrides})
-
-
-def train(config: Any = None, **kwargs: Any) -> dict[str, Any]:
-    """Train with the shared loop (:func:`demo.train.bc.train`); ``config`` from :func:`train_config`."""
-    from demo.train.bc import train as train_bc
-
-    return train_bc(config if config is not None else train_config(), **kwargs)

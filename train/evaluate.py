@@ -1,10 +1,10 @@
 """Policy evaluation by rollouts in the simulator: success rate with a Wilson interval, lengths, failures.
 
 Episode ``i`` of ``demo eval --seed S`` starts from ``env.reset(eval_seeds(S)[i])``
-(:mod:`demo.train.seeds`: a seed stream disjoint from the one demonstrations are collected with);
+(:mod:`demo.seeds`: a seed stream disjoint from the one demonstrations are collected with);
 the seeds used are checked against the seeds of the run's training data and the overlap reported.
-Each episode runs :func:`demo.collect.rollout.rollout` (the loop collection uses): it ends at the task
-horizon, or once success has held for 0.5 s. Outcomes:
+Each episode runs :func:`demo.sim.rollout.rollout` (the loop collection uses, and its ending rule):
+it ends at the task horizon, or once success has held for 0.5 s. Outcomes:
 
 - ``success``: the success predicate holds at the end;
 - ``timeout``: it never held before the horizon;
@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,12 +30,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from demo.collect.rollout import StepCommand, rollout
 from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
+from demo.seeds import EVAL_OFFSET, eval_seeds
+from demo.sim.rollout import StepCommand, rollout
 from demo.train.actions import make_action_adapter
 from demo.train.actor import ExecConfig, PolicyActor
 from demo.train.checkpoint import PolicyBundle, load_bundle
-from demo.train.seeds import EVAL_OFFSET, eval_seeds
 
 Z95 = 1.959963984540054
 
@@ -83,8 +84,10 @@ class EpisodeOutcome:
 # ---------------------------------------------------------------------------------- environment
 def resolve_target(
     bundle: PolicyBundle, task: str | None, task_options: dict[str, Any] | None, robot: str | None
-) -> tuple[str, dict[str, Any], str | None]:
-    """The task, task options and robot config to evaluate on; refuses ones the policy was not trained for."""
+) -> tuple[str, dict[str, Any], Any]:
+    """The task, task options and robot (a ``RobotConfig``) to evaluate on; refuses ones the policy was
+    not trained for. ``robot``: a config TOML overriding the run's record (``--robot``); else the robot
+    files the run (or its training store's recorded source) carries."""
     where = str(bundle.path or "run")
     trained_task = bundle.task.get("name")
     trained_options = dict(bundle.task.get("options") or {})
@@ -98,10 +101,9 @@ def resolve_target(
         raise DemoError(
             where, f"was trained on {task} with options {trained_options}; it cannot be evaluated with {options}"
         )
-    trained_config = bundle.robot.get("config")
-    if robot is None:
-        robot = None if trained_config in (None, "builtin") else str(trained_config)
-    return task, options, robot
+    from demo.sim.robot_record import resolve_robot
+
+    return task, options, resolve_robot(bundle.robot, robot, bundle.path)
 
 
 def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: str | None, cameras: Sequence[Any] = ()) -> Any:
@@ -144,11 +146,10 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
         return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
     if _diverged(env):
         return EpisodeOutcome(index, seed, False, episode.length, None, "error", "simulation became unstable")
-    failure = env.task.failure(env)
     if episode.success:
         outcome = "success"
-    elif failure:
-        outcome = failure
+    elif episode.failure:
+        outcome = episode.failure
     elif episode.first_success_step is not None:
         outcome = "lost"
     else:
@@ -167,24 +168,19 @@ def _diverged(env: Any) -> bool:
     return int(data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number) > 0 or not np.isfinite(data.qpos).all()
 
 
-def run_episodes_inline(
-    bundle: PolicyBundle,
-    env: Any,
-    seeds: Sequence[int],
-    execution: ExecConfig | None = None,
-    record: Sequence[int] = (),
-    on_episode: Callable[[EpisodeOutcome], None] | None = None,
-) -> list[EpisodeOutcome]:
-    """Evaluate an in-memory policy in this process (training-time evaluation, tests)."""
+def iter_episodes_inline(bundle: PolicyBundle, env: Any, jobs: Sequence[tuple[int, int, bool]],
+                         execution: ExecConfig | None = None) -> Iterator[EpisodeOutcome]:
+    """Roll the policy out in this process, one ``(index, seed, record)`` job after the other."""
     actor = make_actor(bundle, env, execution)
-    outcomes = []
     with single_thread():
-        for i, seed in enumerate(seeds):
-            out = run_episode(env, actor, i, int(seed), record=i in record)
-            outcomes.append(out)
-            if on_episode:
-                on_episode(out)
-    return outcomes
+        for index, seed, record in jobs:
+            yield run_episode(env, actor, index, int(seed), record=record)
+
+
+def run_episodes_inline(bundle: PolicyBundle, env: Any, seeds: Sequence[int],
+                        execution: ExecConfig | None = None) -> list[EpisodeOutcome]:
+    """Evaluate an in-memory policy in this process (training-time evaluation, benchmarks)."""
+    return list(iter_episodes_inline(bundle, env, [(i, int(s), False) for i, s in enumerate(seeds)], execution))
 
 
 class single_thread:
@@ -260,8 +256,10 @@ def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | N
     return execution
 
 
-def evaluate(config: EvalConfig, on_episode: Callable[[EpisodeOutcome], None] | None = None) -> dict[str, Any]:
-    """Evaluate the run at ``config.run``; returns the JSON-able result (see :func:`summarize`)."""
+def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """Evaluate the run at ``config.run``; returns the JSON-able result (see :func:`summarize`).
+
+    ``progress`` gets a tick per finished episode (stage ``eval RUN``, field ``success`` so far)."""
     if config.episodes < 1:
         raise DemoError("--episodes", "must be at least 1")
     if config.workers < 1:
@@ -275,20 +273,21 @@ def evaluate(config: EvalConfig, on_episode: Callable[[EpisodeOutcome], None] | 
     jobs = [(i, s, i < n_video) for i, s in enumerate(seeds)]
     start = time.perf_counter()
     outcomes: list[EpisodeOutcome] = []
+    tell = or_silent(progress)
+
+    def done(outcome: EpisodeOutcome) -> None:
+        outcomes.append(outcome)
+        successes = sum(o.success for o in outcomes)
+        tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
+
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
     try:
         if config.workers == 1:
-            actor = make_actor(bundle, env, execution)
-            with single_thread():
-                for index, seed, record in jobs:
-                    outcomes.append(run_episode(env, actor, index, seed, record=record))
-                    if on_episode:
-                        on_episode(outcomes[-1])
+            episodes = iter_episodes_inline(bundle, env, jobs, execution)
         else:
-            for out in _run_parallel(run, task, options, robot, execution, jobs, config.workers):
-                outcomes.append(out)
-                if on_episode:
-                    on_episode(out)
+            episodes = _run_parallel(run, task, options, robot, execution, jobs, config.workers)
+        for outcome in episodes:
+            done(outcome)
     finally:
         env.close()
     seconds = time.perf_counter() - start
@@ -302,7 +301,7 @@ def evaluate(config: EvalConfig, on_episode: Callable[[EpisodeOutcome], None] | 
             "task_options": options,
             "robot": bundle.robot.get("name"),
             "seed": config.seed,
-            "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.train.seeds)",
+            "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.seeds)",
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
             "execution": execution.to_json(),
             "workers": config.workers,

@@ -3,7 +3,8 @@
 A policy maps a *normalised* observation history ``obs [B, n_obs, obs_dim]`` (min-max to [-1, 1],
 see :mod:`demo.train.normalizer`) to a *normalised* action chunk ``[B, horizon, action_dim]`` whose
 step 0 is the action for the current frame. Everything around it is shared and knows nothing about
-the network: the data pipeline and training loop (:mod:`demo.train.bc`), DAgger
+the network: the data pipeline (:mod:`demo.train.data`), the training run
+(:mod:`demo.train.trainer`), behaviour cloning (:mod:`demo.train.bc`), DAgger
 (:mod:`demo.train.dagger`), checkpoints (:mod:`demo.train.checkpoint`), execution with chunking and
 temporal ensembling (:mod:`demo.train.actor`), evaluation and plots.
 
@@ -50,9 +51,6 @@ class Policy(nn.Module):
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = type(None)
-    # Training-loop settings (fields of demo.train.bc.TrainConfig) this policy is trained with unless
-    # the user says otherwise, e.g. {"chunk": 16, "lr": 1e-4}; `demo train --algo NAME` applies them.
-    TRAIN_DEFAULTS: ClassVar[dict[str, Any]] = {}
 
     def __init__(self, spec: PolicySpec, config: Any):
         super().__init__()

@@ -8,9 +8,10 @@ columns, a timeline slider with play/pause and speed, the current camera image w
 observation (or ``info.*``) key.
 
 The scene model comes from the store's metadata: ``meta.task["name"]`` and ``["options"]`` and
-``meta.robot["config"]`` go to ``demo.sim.make_env``; ``mjcf=`` (``--mjcf``) overrides it with any
-MJCF file. Without a model, or when ``sim.state`` does not fit it, the page still shows curves and
-flags and says why there is no 3D scene.
+the robot ``meta.robot`` records (``demo.sim.robot_record.resolve_robot``: the files the store
+carries, or ``robot=``/``--robot``) go to ``demo.sim.make_env``; ``mjcf=`` (``--mjcf``) overrides
+it with any MJCF file. Without a model, or when ``sim.state`` does not fit it, the page still shows
+curves and flags and says why there is no 3D scene (a missing robot file is named there).
 
 Library use (tests, notebooks)::
 
@@ -39,10 +40,13 @@ SPEEDS = ("0.25x", "0.5x", "1x", "2x", "4x")
 X_NOT_TIME = {"x": {"time": False}}  # uPlot reads x as UNIX time unless told otherwise
 
 
-def load_scene_model(meta: StoreMeta, mjcf: str | Path | None = None) -> tuple[Any, Any, str]:
+def load_scene_model(
+    meta: StoreMeta, mjcf: str | Path | None = None, robot: str | Path | None = None, where: str | Path | None = None
+) -> tuple[Any, Any, str]:
     """``(model, owner, description)`` for the store's scene; ``model`` is None with the reason.
 
-    ``owner`` is what must be closed when done (a ``demo.sim`` env) or None.
+    ``owner`` is what must be closed when done (a ``demo.sim`` env) or None. ``robot``: a robot
+    config overriding the store's (a bad one raises DemoError); ``where``: the store directory.
     """
     import mujoco
 
@@ -57,22 +61,27 @@ def load_scene_model(meta: StoreMeta, mjcf: str | Path | None = None) -> tuple[A
     if not name:
         return None, None, "the store's metadata names no task (pass --mjcf to draw a scene)"
     options = task.get("options") if isinstance(task.get("options"), dict) else {}
-    config = (meta.robot or {}).get("config")
-    robot = None if config in (None, "", "builtin") else config
     try:
-        from demo.sim import make_env
+        from demo.sim import TASK_NAMES, make_env
+        from demo.sim.robot_record import resolve_robot
     except ImportError:
+        return None, None, "demo.sim is not available (pass --mjcf to draw a scene)"
+    if name not in TASK_NAMES:
+        return None, None, f"cannot build task {name!r}: not a demo.sim task (pass --mjcf to draw a scene)"
+    if robot is not None:
+        robot_config = resolve_robot(meta.robot, robot)  # the user's own --robot: its errors are errors
+    else:
         try:
-            from demo.sim.env import make_env
-        except ImportError:
-            return None, None, "demo.sim is not available (pass --mjcf to draw a scene)"
+            robot_config = resolve_robot(meta.robot, where=where)
+        except DemoError as exc:
+            return None, None, f"cannot find the store's robot: {exc}"
     try:
-        env = make_env(str(name), robot=robot, **options)
+        env = make_env(str(name), robot=robot_config, **options)
     except DemoError as exc:
         return None, None, f"cannot build task {name!r}: {exc}"
     except Exception as exc:  # an unknown task or options: still show curves and flags
         return None, None, f"cannot build task {name!r} ({type(exc).__name__}: {first_line(exc)})"
-    return env.model, env, f"task {name} ({(meta.robot or {}).get('name', 'built-in robot')})"
+    return env.model, env, f"task {name} ({robot_config.name})"
 
 
 class Viewer:
@@ -86,6 +95,7 @@ class Viewer:
         port: int = 8080,
         episode: int = 0,
         mjcf: str | Path | None = None,
+        robot: str | Path | None = None,
         autoplay: bool = True,
         verbose: bool = False,
     ):
@@ -118,7 +128,7 @@ class Viewer:
         if "sim.state" not in meta.features:
             self.scene_note = "the store has no sim.state: nothing to replay in 3D"
         else:
-            model, self._owner, description = load_scene_model(meta, mjcf)
+            model, self._owner, description = load_scene_model(meta, mjcf, robot, store_path)
             if model is None:
                 self.scene_note = description
         self.verbose = verbose
@@ -346,14 +356,17 @@ def serve(
     *,
     episode: int = 0,
     mjcf: str | Path | None = None,
+    robot: str | Path | None = None,
     autoplay: bool = True,
     verbose: bool = False,
 ) -> Viewer:
     """Start the viewer for the store at ``store_path``; returns once the server listens (viser waits).
 
     ``port=0`` picks a free port (``viewer.port``). Call ``viewer.stop()`` to shut it down.
+    ``robot``: a robot config TOML to draw instead of the one the store records (``--robot``).
     """
-    return Viewer(store_path, host=host, port=port, episode=episode, mjcf=mjcf, autoplay=autoplay, verbose=verbose)
+    return Viewer(store_path, host=host, port=port, episode=episode, mjcf=mjcf, robot=robot, autoplay=autoplay,
+                  verbose=verbose)
 
 
 def _quiet(enabled: bool) -> Any:

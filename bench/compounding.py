@@ -35,14 +35,13 @@ Every method executes the gripper as a binary open/closed command (``binary_grip
 (BC on N = 1 at DAgger's label budget: 30% without it (186 demonstrations), 81% with it (164), 100
 episodes each).
 
-Run with ``demo bench compounding`` or ``python -m demo.train.compounding``; it writes one JSON
+Run with ``demo bench compounding``; it writes one JSON
 (every number and the exact configuration) and a PNG (success with 95% intervals against horizon).
 Each method's run directory is kept under ``out`` for ``demo eval`` and inspection.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from dataclasses import asdict, dataclass, field
@@ -53,11 +52,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.store import EpisodeStore
-from demo.train import checkpoint as ckpt
-from demo.train.bc import TrainConfig, train
-from demo.train.dagger import DaggerConfig, train_dagger
-from demo.train.evaluate import EvalConfig, evaluate
-from demo.train.plots import plot_success_vs
+from demo.train.config import TrainConfig, for_policy
 
 
 @dataclass
@@ -84,9 +79,10 @@ class CompoundingConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def _train_config(c: CompoundingConfig, data: Path, out: Path, **kw: Any) -> TrainConfig:
-    return TrainConfig(data=str(data), out=str(out), seed=c.seed, steps=c.steps, batch_size=c.batch_size,
-                       policy={"hidden": c.hidden}, binary_gripper=c.binary_gripper, **kw)
+def _train_config(c: CompoundingConfig, data: Path, out: Path, chunk: int = 1) -> TrainConfig:
+    """Every method's learner: the same MLP and optimiser; single-step unless ``chunk`` (then ensembled)."""
+    return for_policy("bc", data=str(data), out=str(out), seed=c.seed, steps=c.steps, batch_size=c.batch_size,
+                      policy={"hidden": c.hidden}, binary_gripper=c.binary_gripper, chunk=chunk, ensemble=chunk > 1)
 
 
 def _subset(pool: EpisodeStore, path: Path, n: int) -> Path:
@@ -111,19 +107,27 @@ _CACHE_KEYS = ("task", "seed", "demos", "pool", "rounds", "episodes_per_round", 
 
 def _check_cached_configuration(d: Path, c: CompoundingConfig) -> None:
     """Reuse ``d`` only if it was made with this configuration (written on first use)."""
+    from demo.train.checkpoint import read_json, write_json
+
     path = d / "configuration.json"
     mine = json.loads(json.dumps({k: getattr(c, k) for k in _CACHE_KEYS}))
     if path.exists():
-        theirs = ckpt.read_json(path)
+        theirs = read_json(path)
         differ = sorted(k for k in _CACHE_KEYS if theirs.get(k) != mine[k])
         if differ:
             raise DemoError(d, f"holds runs made with other {', '.join(differ)}; choose another --out")
     else:
-        ckpt.write_json(path, mine)
+        write_json(path, mine)
 
 
 def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
+    # Imported here so that `demo --help`, which shows CompoundingConfig's defaults, stays light.
     from demo.collect.scripted import CollectConfig, collect_scripted
+    from demo.train.bc import train
+    from demo.train.checkpoint import POLICY_FILE, RUN_FILE, read_json, read_run, write_json
+    from demo.train.dagger import DaggerConfig, train_dagger
+    from demo.train.evaluate import EvalConfig, evaluate
+    from demo.train.plots import plot_success_vs
 
     out = Path(c.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -144,12 +148,12 @@ def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, A
 
         # ---- DAgger sets the label budget
         dagger_run = d / "dagger"
-        if not (dagger_run / ckpt.RUN_FILE).exists() or "final" not in _metrics(dagger_run):
+        if not (dagger_run / RUN_FILE).exists() or "final" not in _metrics(dagger_run):
             log(f"[blocks {n}] DAgger: {c.demos} demos + {c.rounds} x {c.episodes_per_round} rollouts")
             demos = _subset(pool, d / f"demos{c.demos}.zarr", c.demos)
             tc = _train_config(c, demos, dagger_run)
             train_dagger(DaggerConfig(train=tc, rounds=c.rounds, episodes_per_round=c.episodes_per_round,
-                                      round_steps=c.round_steps, beta=c.beta, gate=c.gate), progress=False, overwrite=True)
+                                      round_steps=c.round_steps, beta=c.beta, gate=c.gate), overwrite=True)
         budget = int(_metrics(dagger_run)["final"]["expert_labels"])
         while int(pool.episode_lengths.sum()) < budget:
             pool.close()
@@ -165,28 +169,27 @@ def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, A
         runs = {"dagger": dagger_run}
         if "bc" in c.methods:
             runs["bc"] = d / "bc"
-            if not (runs["bc"] / ckpt.POLICY_FILE).exists():
+            if not (runs["bc"] / POLICY_FILE).exists():
                 log(f"[blocks {n}] BC on {k} demos ({budget} labels)")
-                train(_train_config(c, bc_data, runs["bc"]), progress=False, overwrite=True)
+                train(_train_config(c, bc_data, runs["bc"]), overwrite=True)
         if "bc_chunk" in c.methods:
             runs["bc_chunk"] = d / f"bc_chunk{c.chunk}"
-            if not (runs["bc_chunk"] / ckpt.POLICY_FILE).exists():
+            if not (runs["bc_chunk"] / POLICY_FILE).exists():
                 log(f"[blocks {n}] BC + chunking ({c.chunk}) on {k} demos")
-                train(_train_config(c, bc_data, runs["bc_chunk"], chunk=c.chunk, ensemble=0.01), progress=False,
-                      overwrite=True)
+                train(_train_config(c, bc_data, runs["bc_chunk"], chunk=c.chunk), overwrite=True)
         pool.close()
         for method, run_dir in runs.items():
             if method not in c.methods:
                 continue
             result_path = run_dir / "eval.json"
             if result_path.exists():
-                result = ckpt.read_json(result_path)
+                result = read_json(result_path)
             else:
                 log(f"[blocks {n}] evaluating {method} on {c.eval_episodes} episodes")
                 result = evaluate(EvalConfig(run=str(run_dir), episodes=c.eval_episodes, seed=c.seed, workers=c.workers))
                 result.pop("episodes_detail", None)
-                ckpt.write_json(result_path, result)
-            labels = int(ckpt.read_run(run_dir)["data"]["expert_labels"])
+                write_json(result_path, result)
+            labels = int(read_run(run_dir)["data"]["expert_labels"])
             entry[method] = {k2: result[k2] for k2 in ("success_rate", "ci95", "successes", "episodes", "mean_length", "failures")}
             entry[method]["expert_labels"] = labels
             entry[method]["run"] = str(run_dir)
@@ -213,35 +216,10 @@ def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, A
 
 
 def _metrics(run_dir: Path) -> dict[str, Any]:
-    path = run_dir / ckpt.METRICS_FILE
-    return ckpt.read_json(path) if path.exists() else {}
+    from demo.train.checkpoint import METRICS_FILE, read_json
 
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m demo.train.compounding", description=__doc__.split("\n")[0])
-    defaults = CompoundingConfig()
-    p.add_argument("--out", default=defaults.out)
-    p.add_argument("--json", default=None, help="Result JSON (default OUT/compounding.json).")
-    p.add_argument("--blocks", default="1,2,3")
-    for name in ("seed", "demos", "pool", "rounds", "episodes_per_round", "steps", "round_steps", "batch_size", "chunk",
-                 "eval_episodes", "workers"):
-        p.add_argument("--" + name.replace("_", "-"), type=int, default=getattr(defaults, name))
-    p.add_argument("--beta", default=defaults.beta)
-    p.add_argument("--gate", default=defaults.gate, help="HG-DAgger gate, or 'none' for plain DAgger")
-    p.add_argument("--hidden", default=",".join(map(str, defaults.hidden)))
-    p.add_argument("--methods", default=",".join(defaults.methods))
-    a = p.parse_args(argv)
-    config = CompoundingConfig(
-        out=a.out, blocks=tuple(int(b) for b in a.blocks.split(",")), seed=a.seed, demos=a.demos, pool=a.pool,
-        rounds=a.rounds, episodes_per_round=a.episodes_per_round, beta=a.beta,
-        gate=None if a.gate in (None, "none") else a.gate, steps=a.steps,
-        round_steps=a.round_steps, hidden=tuple(int(h) for h in a.hidden.split(",")), batch_size=a.batch_size,
-        chunk=a.chunk, eval_episodes=a.eval_episodes, workers=a.workers, methods=tuple(a.methods.split(",")),
-    )
-    result = run(config)
-    ckpt.write_json(Path(a.json or Path(a.out) / "compounding.json"), result)
-    print(format_table(result))
-    return 0
+    path = run_dir / METRICS_FILE
+    return read_json(path) if path.exists() else {}
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -254,6 +232,3 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"{r['blocks']:<7} {r['horizon']:<8} {r['expert_labels']:<8} " + "  ".join(f"{c:<15}" for c in cells))
     return "\n".join(lines)
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

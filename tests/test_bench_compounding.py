@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from demo.bench.compounding import CompoundingConfig, format_table, run
+from demo.cli.main import main
 from demo.store import EpisodeStore
-from demo.train.compounding import CompoundingConfig, format_table, run
 
 torch.set_num_threads(1)
 
 
-def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
+def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
     config = CompoundingConfig(out=str(tmp_path), blocks=(1,), demos=3, pool=6, rounds=1, episodes_per_round=1,
                                steps=30, round_steps=20, hidden=(16,), batch_size=32, chunk=4, eval_episodes=2)
     result = run(config, log=lambda text: None)
@@ -37,9 +39,13 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path) -> None:
         assert load_bundle(row[method]["run"]).execution.binary == (7,)
     assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] == "deviation:0.05"
     assert "DAgger" in format_table(result)
-    # A rerun reuses every stage (stores, runs, evaluations) instead of repeating it.
-    again = run(config, log=lambda text: None)
-    assert again["rows"][0]["bc"] == row["bc"] and again["seconds"] < result["seconds"]
+    # A rerun (here the CLI's, its JSON alone on stdout) reuses every stage instead of repeating it.
+    capfd.readouterr()
+    assert main(["bench", "compounding", "--out", str(tmp_path), "--blocks", "1", "--demos", "3", "--pool", "6",
+                 "--rounds", "1", "--episodes-per-round", "1", "--steps", "30", "--round-steps", "20", "--hidden", "16",
+                 "--batch-size", "32", "--chunk", "4", "--eval-episodes", "2", "--json", "-"]) == 0
+    again = json.loads(capfd.readouterr().out)
+    assert again["rows"][0]["bc"] == json.loads(json.dumps(row["bc"])) and again["seconds"] < result["seconds"]
     # ... but not with a different configuration: that needs another --out.
     import dataclasses
 

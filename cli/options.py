@@ -1,0 +1,47 @@
+"""The parameters every command spells the same way: ``STORE``, ``RUN``, ``--json FILE|-``, ``--overwrite``,
+``--mask NAME``, ``--robot``.
+
+Each function returns a fresh typer parameter (typer needs one object per use) so a command reads
+``store: Path = store_argument("Store to curate (never modified).")``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import typer
+
+STORE = "STORE"
+RUN = "RUN"
+JSON_HELP = "Write {what} as JSON to FILE; '-' prints it to stdout, which then holds only the JSON."
+
+
+def store_argument(help: str = "Episode store directory (e.g. pick.zarr).") -> Any:
+    """The positional store of a command that reads one."""
+    return typer.Argument(..., metavar=STORE, help=help, show_default=False)
+
+
+def run_argument(help: str = "Run directory written by demo train.") -> Any:
+    """The positional run directory of a command that reads one."""
+    return typer.Argument(..., metavar=RUN, help=help, show_default=False)
+
+
+def json_option(what: str = "the results", default: str | None = None, unset: str = "no JSON") -> Any:
+    """``--json FILE|-``; benchmarks default to ``-`` (their result is the JSON). ``unset``: what
+    happens without the flag, for the help."""
+    return typer.Option(default, "--json", metavar="FILE|-", help=JSON_HELP.format(what=what),
+                        show_default=default if default is not None else unset)
+
+
+def overwrite_option(what: str = "an existing --out") -> Any:
+    """A plain ``--overwrite`` flag (no ``--no-overwrite``)."""
+    return typer.Option(False, "--overwrite", help=f"Replace {what}.")
+
+
+def mask_option(help: str = "Only the episodes of this store mask (see demo info).") -> Any:
+    """``--mask NAME``: a subset of a store's episodes (``--episodes`` is always a count)."""
+    return typer.Option(None, "--mask", metavar="NAME", help=help, show_default="every episode")
+
+
+def robot_option(help: str = "Robot config TOML.", default: str = "the built-in arm") -> Any:
+    return typer.Option(None, "--robot", metavar="TOML", help=help, show_default=default)

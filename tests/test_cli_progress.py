@@ -1,0 +1,43 @@
+"""The CLI's progress renderer: ticks become bars on stderr (stdout stays for JSON), nothing at all
+before the first bar (so a command that fails validation prints only its error)."""
+
+from __future__ import annotations
+
+import pytest
+
+from demo.cli.progress import bars, format_fields
+from demo.progress import Tick
+
+
+def test_bars_draw_on_stderr_with_fields_and_messages(capsys: pytest.CaptureFixture[str]) -> None:
+    with bars() as progress:
+        progress(Tick("collect reach", 0, 3))
+        progress(Tick("collect reach", 3, 3, {"success": "3/3", "frames/s": 1234.5678}))
+        progress(Tick("train bc", 5, None, {"loss": 0.000123456}))
+        progress(Tick("train bc", message="round 1: 40 labels"))
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "collect reach" in err and "3/3" in err and "success 3/3  frames/s 1235" in err
+    assert "train bc" in err and "5/?" in err and "loss 0.0001235" in err
+    assert "round 1: 40 labels" in err and err.endswith("\n")
+
+
+def test_no_bar_no_output(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ValueError):
+        with bars():
+            raise ValueError("bad input")  # validation failed before any tick
+    with bars(enabled=False) as progress:
+        progress(Tick("collect reach", 1, 2, message="hidden"))
+    assert capsys.readouterr() == ("", "")
+
+
+def test_format_fields() -> None:
+    assert format_fields({"success": "2/4", "loss": 0.123456, "step": 7}) == "success 2/4  loss 0.1235  step 7"
+
+
+def test_bars_are_cleared_on_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ValueError):
+        with bars() as progress:
+            progress(Tick("import lerobot", 3, 7))
+            raise ValueError("episode 4 is corrupted")
+    assert capsys.readouterr() == ("", "")  # not a terminal: nothing drawn; a terminal clears the bar

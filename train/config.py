@@ -1,0 +1,171 @@
+"""The configuration of a training run, and where its defaults live.
+
+:class:`TrainConfig` holds every hyperparameter of a supervised run (behaviour cloning, diffusion,
+and DAgger's learners). The settings a policy is tuned for (``steps``, ``lr``, ``chunk``, ...) are
+``None`` until resolved: :func:`for_policy` fills each one from, in order,
+
+1. what the caller gave (a CLI flag, a keyword),
+2. the policy's own training defaults (:data:`POLICY_DEFAULTS`: BC's 16-step chunks with temporal
+   ensembling, diffusion's chunk 16, n_obs 2, execute 4, 16,000 steps), the configuration measured
+   best, each with the measurement behind it,
+3. :data:`LOOP_DEFAULTS`, the generic ones.
+
+They are plain data here (no torch import), so ``demo train --help`` shows them.
+
+Every caller gets the same run for the same request: the CLI, quickstart, the benchmarks, the
+experiments and a Python user who writes ``TrainConfig(data=..., out=..., algo="diffusion")``, since
+the trainer resolves a config before it trains (:meth:`TrainConfig.resolved`). The run directory
+records the resolved values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from demo.errors import DemoError
+
+# The generic training-loop settings, where the policy says nothing (demo.train.policy.Policy.TRAIN_DEFAULTS).
+LOOP_DEFAULTS: dict[str, Any] = {
+    "steps": 5000,
+    "batch_size": 256,
+    "lr": 1e-3,
+    "weight_decay": 1e-4,
+    "warmup_steps": 500,
+    "ema": 0.0,
+    "n_obs": 1,
+    "chunk": 1,
+    "execute": 1,
+    "ensemble": False,
+}
+
+# Each policy's measured-best settings (held-out eval seeds, >= 100 episodes; README, Results).
+POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
+    # pick, 100 scripted demos: 16-step chunks executed with temporal ensembling 99/100, single-step
+    # 52-61/100. Chunks are the cure for compounding errors.
+    "bc": {"chunk": 16, "ensemble": True},
+    # Diffusion Policy's horizon 16 / n_obs 2 and AdamW with warm-up + cosine, with a learning rate and
+    # EMA for runs of ~10^4 steps on a CPU (published: 1e-4 and EMA to 0.9999 over ~10^6 steps).
+    "diffusion": {
+        "chunk": 16,  # horizon
+        "n_obs": 2,
+        # avoid (200 paired demos, 16000 steps), whose demonstrations pass the obstacle 2 cm away:
+        # execute 4 gives 94%/93% (training seeds 0/1), execute 8 91%/93%; pick (100 demos): 96% with 8
+        "execute": 4,
+        # never temporal ensembling: averaging overlapping chunks that went to different modes is the
+        # very mode averaging diffusion is there to avoid
+        "ensemble": False,
+        "lr": 1e-3,
+        "weight_decay": 1e-6,
+        "warmup_steps": 500,
+        "ema": 0.995,
+        "batch_size": 256,
+        # ~24 min of one CPU core. avoid (200 demos) reached 80-90% over 4 seeds at 8000 steps and
+        # 93-94% at 16000; with 100 demos at 8000 steps 83%. pick: 90% at 6000 steps, 96% at 8000.
+        "steps": 16000,
+    },
+}
+
+# DAgger's learner is BC's policy, single-step by default: a label is the expert's action in one visited
+# state, and a window of them is not the expert's plan from that state (measured: bench compounding).
+DAGGER_DEFAULTS: dict[str, Any] = {"chunk": 1, "ensemble": False}
+
+
+@dataclass
+class TrainConfig:
+    """Every hyperparameter of a training run. ``None`` = the policy's default (see :func:`for_policy`)."""
+
+    data: str = ""  # episode store
+    out: str = ""  # run directory
+    algo: str = "bc"  # registered policy (demo.train.policy): bc (MLP), diffusion, ...
+    policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
+    seed: int = 0
+    # ---- tuned per policy (None until resolved)
+    steps: int | None = None  # optimiser steps
+    batch_size: int | None = None  # windows per batch
+    lr: float | None = None  # peak learning rate (AdamW, linear warm-up, cosine decay)
+    weight_decay: float | None = None  # AdamW weight decay (not on biases and norms)
+    warmup_steps: int | None = None
+    ema: float | None = None  # EMA decay of the weights used for evaluation (e.g. 0.995); 0 = off
+    n_obs: int | None = None  # observation history (frames)
+    chunk: int | None = None  # actions predicted per query (action chunking when > 1)
+    execute: int | None = None  # actions executed per query (receding horizon)
+    ensemble: bool | None = None  # temporal ensembling of overlapping chunks at execution (ACT)
+    # ---- the same for every policy
+    ensemble_decay: float = 0.01  # ensembling weight exp(-m i) of the i-th newest prediction's age (ACT: m = 0.01)
+    min_lr_ratio: float = 0.01  # cosine decays to this fraction of lr
+    grad_clip: float = 10.0  # max gradient norm; 0 = off
+    binary_gripper: bool = False  # execute the action's "gripper" entry as open/closed (>= 0.5: 1), see ExecConfig.binary
+    obs_keys: tuple[str, ...] = ()  # default: low-dim obs.* keys except velocities (demo.train.observation); ("all",) = all
+    obs_noise: float = 0.0  # std of Gaussian noise added to normalised observations (augmentation)
+    relative_actions: bool = True  # predict joint targets relative to the current joint positions (demo.train.relative)
+    train_mask: str | None = None  # train on this store mask's episodes only (e.g. a curated subset)
+    val_mask: str | None = None  # validation episodes = this mask's episodes
+    val_fraction: float = 0.1  # otherwise this fraction of episodes, drawn with the seed
+    include_failures: bool = False  # also train on episodes whose success is False
+    log_every: int = 100
+    val_every: int = 500
+    eval_every: int = 0  # rollout evaluation every N steps; 0 = only if eval_final
+    eval_episodes: int = 10
+    eval_final: bool = False  # evaluate once more at the end
+    robot: str | None = None  # robot config TOML, where the store's recorded robot files cannot be found (--robot)
+    threads: int = 1  # torch threads (small networks gain little from more; idle threads busy-wait on a shared machine); 0 = torch's default
+
+    def given(self) -> dict[str, Any]:
+        """The fields that are set (not ``None``)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if getattr(self, f.name) is not None}
+
+    def resolved(self) -> "TrainConfig":
+        """This config with every ``None`` setting filled by the policy's defaults, then the generic ones."""
+        return for_policy(self.algo, **self.given())
+
+    def check(self) -> None:
+        """Raise a :class:`DemoError` naming the flag of the first invalid value (resolved configs only)."""
+        unresolved = [f.name for f in dataclasses.fields(self) if f.name in LOOP_DEFAULTS and getattr(self, f.name) is None]
+        if unresolved:
+            raise ValueError(f"TrainConfig is not resolved ({', '.join(unresolved)}); call .resolved() first")
+        positive = {"steps": self.steps, "batch_size": self.batch_size, "n_obs": self.n_obs, "chunk": self.chunk,
+                    "execute": self.execute, "log_every": self.log_every, "val_every": self.val_every}
+        for name, value in positive.items():
+            if value < 1:
+                raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
+        if self.execute > self.chunk:
+            raise DemoError("--execute", f"cannot exceed --chunk ({self.chunk}), got {self.execute}")
+        if not 0 <= self.val_fraction < 1:
+            raise DemoError("--val-fraction", f"must lie in [0, 1), got {self.val_fraction}")
+        if not 0 <= self.ema < 1:
+            raise DemoError("--ema", f"must lie in [0, 1), got {self.ema}")
+        if self.lr <= 0:
+            raise DemoError("--lr", f"must be > 0, got {self.lr}")
+        if self.ensemble_decay < 0:
+            raise DemoError("--ensemble-decay", f"must be >= 0, got {self.ensemble_decay}")
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["obs_keys"] = list(self.obs_keys)
+        d["policy"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.policy.items()}
+        return d
+
+
+def policy_defaults(name: str) -> dict[str, Any]:
+    """The training-loop settings policy ``name`` is trained with unless told otherwise."""
+    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {})}
+
+
+def for_policy(name: str, **given: Any) -> TrainConfig:
+    """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
+    then the policy's ``TRAIN_DEFAULTS``, then :data:`LOOP_DEFAULTS`."""
+    from demo.train.policy import policy_class
+
+    policy_class(name)  # an unknown policy fails here, naming the known ones
+    given = {k: v for k, v in given.items() if v is not None}
+    given.pop("algo", None)
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise TypeError(f"TrainConfig has no field {', '.join(unknown)}")
+    values = {**policy_defaults(name), **given, "algo": name}
+    if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
+        values["execute"] = min(values["execute"], values["chunk"])
+    return TrainConfig(**values)

@@ -1,0 +1,349 @@
+"""A training run: everything around the optimisation that every algorithm shares.
+
+:class:`TrainingRun` owns a run's lifecycle, so that an algorithm file holds only what is its own:
+
+1. **seeding and threads**: ``torch.manual_seed(seed)``, the batch RNG, ``torch.set_num_threads``;
+2. **the run directory** (:mod:`demo.train.checkpoint`): refused if it holds something else,
+   replaced only with ``overwrite``, continued with ``resume`` (which must train the same thing);
+3. **the record** ``run.json``: task, robot, data split, the resolved config, the exact command;
+4. **the loop** (:meth:`TrainingRun.fit`): batches of training windows, one optimiser step each
+   (:func:`demo.train.optim.train_step`), mean training loss every ``log_every`` steps, validation
+   loss every ``val_every``, rollout success every ``eval_every`` (:class:`Monitor`: episodes of
+   the store's task on seeds disjoint from the data and from ``demo eval``);
+5. **checkpoints**: the policy (evaluation weights) and ``train_state.pt`` (tensors only) at every
+   evaluation, at the end, and on Ctrl-C, so that ``resume`` continues bit-exactly;
+6. **metrics and the summary**: ``metrics.json``, ``curves.png``, the dict :meth:`finish` returns.
+
+Progress is reported as :class:`demo.progress.Tick` s of one stage ("train ALGO") with the fields
+``loss``, ``val``, ``success`` and ``info``; the CLI draws them.
+
+Use (behaviour cloning, :mod:`demo.train.bc`)::
+
+    with TrainingRun(config, progress=progress, resume=resume, overwrite=overwrite) as run:
+        data = ...                         # demo.train.data.prepare
+        learner = run.new_learner(data)
+        run.begin(store, data, learner)    # opens the run directory, writes run.json
+        run.fit(data.windows(data.train_episodes), until=config.steps)
+        return run.finish()
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
+from demo.store import ActionSpec, EpisodeStore, StoreMeta
+from demo.train import checkpoint as ckpt
+from demo.train.actor import ExecConfig
+from demo.train.config import TrainConfig
+from demo.train.data import Batch, TrainingData, Windows
+from demo.train.optim import Learner, make_learner, train_step, validation_loss
+from demo.train.policy import build_policy, policy_config
+
+# What --resume may not change: the data, the policy and everything that shapes its training.
+RESUME_KEYS = ("algo", "policy", "seed", "batch_size", "lr", "n_obs", "chunk", "obs_keys", "train_mask", "val_mask",
+               "val_fraction", "include_failures", "ema", "weight_decay", "warmup_steps", "min_lr_ratio",
+               "relative_actions", "obs_noise")
+
+
+def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
+    """How the trained policy's chunks and gripper are executed (recorded in the run)."""
+    binary = tuple(i for i, name in enumerate(action.names) if name == "gripper") if config.binary_gripper else ()
+    return ExecConfig(config.execute, config.ensemble_decay if config.ensemble else None, binary)
+
+
+class Monitor:
+    """Periodic rollout evaluation on the data's task (seeds disjoint from the data and from demo eval)."""
+
+    def __init__(self, episodes: int, seed: int):
+        self.episodes, self.seed = episodes, seed
+        self.env: Any = None
+
+    def __call__(self, bundle: ckpt.PolicyBundle) -> dict[str, Any]:
+        from demo.seeds import MONITOR_OFFSET, eval_seeds
+        from demo.train.evaluate import make_eval_env, resolve_target, run_episodes_inline, summarize
+
+        if self.env is None:
+            task, options, robot = resolve_target(bundle, None, None, None)
+            self.env = make_eval_env(bundle, task, options, robot)
+        outcomes = run_episodes_inline(bundle, self.env, eval_seeds(self.seed, self.episodes, MONITOR_OFFSET))
+        return summarize(outcomes)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+
+class TrainingRun:
+    """One run directory from seeding to summary; see the module docstring for its stages."""
+
+    def __init__(self, config: TrainConfig, *, progress: Progress | None = None, resume: bool = False,
+                 overwrite: bool = False, command: str | None = None, total_steps: int | None = None,
+                 name: str | None = None, title: str | None = None):
+        config.check()
+        policy_config(config.algo, config.policy)  # unknown policy or option: fail before touching anything
+        self.config = config
+        self.out = Path(config.out)
+        self.resume, self.overwrite, self.command = resume, overwrite, command
+        self.progress = or_silent(progress)
+        self.total_steps = total_steps or config.steps
+        self.stage = f"train {name or config.algo}"  # the progress bar's label
+        self.title = title or f"{config.algo} on {Path(config.data).name}"
+        if config.threads > 0:
+            torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        self.rng = np.random.default_rng([config.seed, 0xB0C])
+        self.metrics: dict[str, Any] = {"train_loss": [], "val_loss": [], "eval": []}
+        self.monitor = Monitor(config.eval_episodes, config.seed) if (config.eval_every or config.eval_final) else None
+        self.learner: Learner | None = None
+        self.data: TrainingData | None = None
+        self.record: dict[str, Any] = {}
+        self.execution = ExecConfig()
+        self.action: ActionSpec | None = None
+        self._fields = {"loss": "-", "val": "-", "success": "-", "info": ""}
+        self._started = time.perf_counter()
+        self._opened = False
+
+    # ---------------------------------------------------------------------------- 1-3. set-up
+    def __enter__(self) -> "TrainingRun":
+        return self
+
+    def __exit__(self, kind: type | None, *exc: object) -> None:
+        try:
+            if kind is KeyboardInterrupt and self.learner is not None:
+                self.checkpoint()
+        finally:
+            if self.monitor is not None:
+                self.monitor.close()
+
+    def open_directory(self) -> None:
+        """Create the run directory (once); with ``resume`` it must hold a train state, with
+        ``overwrite`` an older run is replaced (never a directory that is not a run)."""
+        out = self.out
+        if self._opened:
+            return
+        self._opened = True
+        if self.resume:
+            if not (out / ckpt.STATE_FILE).is_file():
+                raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+            return
+        if out.exists() and any(out.iterdir()):
+            if not self.overwrite:
+                raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
+            if not (out / ckpt.RUN_FILE).is_file():
+                raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
+            shutil.rmtree(out)
+        out.mkdir(parents=True, exist_ok=True)
+
+    def new_learner(self, data: TrainingData, step: int = 0, phase_steps: int | None = None, seed: int | None = None) -> Learner:
+        """A freshly initialised policy for ``data`` and its optimiser (``seed``: re-seed torch first)."""
+        if seed is not None:
+            torch.manual_seed(seed)
+        policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy))
+        return make_learner(policy, self.config, step, phase_steps)
+
+    def begin(self, store: EpisodeStore, data: TrainingData, learner: Learner,
+              algo_record: dict[str, Any] | None = None) -> None:
+        """Record the run (``run.json``, the robot's files) for the data it trains on (``store``, open),
+        opening the run directory once the robot is found; with ``resume``, check that the run
+        continues the same training (only ``steps`` and monitoring may change)."""
+        robot = ckpt.run_robot(store.meta.robot, store.path, self.config.robot)  # a missing robot file fails before any write
+        self.open_directory()
+        self.attach(learner, data)
+        self.action = store.meta.action
+        self.execution = execution_config(self.config, store.meta.action)
+        seeds = store.column("seed") if store.num_episodes else np.zeros(0, int)
+        self.record = run_record(self.config, store.meta, data, learner, self.execution, self.command, algo_record, seeds)
+        # The run carries its robot (config and files) so that it evaluates wherever it is moved.
+        self.record["robot"] = robot
+        ckpt.save_robot(self.out, robot, store.path)
+        if self.resume:
+            previous = ckpt.read_run(self.out)
+            check_resumable(self.out, previous, self.record)
+            self.record["created"] = previous.get("created", self.record["created"])
+            self.record["resumed"] = [*previous.get("resumed", []),
+                                      {"at_step": None, "command": self.command, "time": ckpt.now()}]
+        ckpt.write_run(self.out, self.record)
+
+    def attach(self, learner: Learner, data: TrainingData) -> None:
+        """Make ``learner`` (trained on ``data``) the one checkpointed, evaluated and reported."""
+        self.learner, self.data = learner, data
+
+    def saved_extra(self) -> dict[str, Any]:
+        """The algorithm's own state saved with the last checkpoint (e.g. DAgger's round)."""
+        return json.loads(ckpt.load_train_state(self.out).get("extra", "{}"))
+
+    def restore(self, learner: Learner) -> dict[str, Any]:
+        """Load the last checkpoint into ``learner``, the batch RNG and the metrics; returns its extra."""
+        state = ckpt.load_train_state(self.out)
+        try:
+            learner.policy.load_state_dict(state["policy"])
+            if learner.ema is not None:
+                learner.ema.shadow = {k: v.clone() for k, v in state["ema"].items()}
+            learner.optimizer.load_state_dict(state["optimizer"])
+            learner.step = int(state["step"])
+            learner.phase_start = int(state.get("phase_start", 0))
+            learner.phase_steps = int(state.get("phase_steps", self.config.steps))
+            self.rng.bit_generator.state = json.loads(state["numpy_rng"])
+            torch.set_rng_state(state["torch_rng"])
+            self.metrics = json.loads(state["metrics"])
+        except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+            raise DemoError(self.out, f"train state does not match this run ({str(exc).splitlines()[0][:160]})") from None
+        if self.record.get("resumed"):
+            self.record["resumed"][-1]["at_step"] = learner.step
+            ckpt.write_run(self.out, self.record)
+        return json.loads(state.get("extra", "{}"))
+
+    # ---------------------------------------------------------------------------- 4. the loop
+    def fit(self, windows: Windows, until: int, val_batch: Batch | None | str = "auto") -> None:
+        """Optimise the attached learner until its step is ``until``, logging losses, evaluating every
+        ``eval_every`` steps. ``val_batch``: the fixed validation windows ("auto": the data's)."""
+        learner, c = self._attached(), self.config
+        if isinstance(val_batch, str):
+            val_batch = self.data.validation_batch(c.seed)
+        self.tick()
+        running, count, t0 = torch.zeros(()), 0, time.perf_counter()
+        if val_batch is not None and learner.step == 0 and not self.metrics.get("val_loss"):
+            self.metrics.setdefault("val_loss", []).append([0, validation_loss(learner, val_batch)])  # the untrained policy
+        while learner.step < until:
+            running += train_step(learner, *windows.sample(c.batch_size, self.rng))
+            count += 1
+            step = learner.step
+            if step % c.log_every == 0 or step == until:
+                mean = float(running / count)
+                if not math.isfinite(mean):
+                    raise DemoError(c.out, f"training diverged (loss {mean} at step {step}); lower --lr")
+                self.metrics.setdefault("train_loss", []).append([step, mean])
+                rate = count * c.batch_size / max(time.perf_counter() - t0, 1e-9)
+                running, count, t0 = torch.zeros(()), 0, time.perf_counter()
+                self.tick(loss=mean, info=f"{rate:,.0f} samples/s")
+            if val_batch is not None and (step % c.val_every == 0 or step == until):
+                v = validation_loss(learner, val_batch)
+                self.metrics.setdefault("val_loss", []).append([step, v])
+                self.tick(val=v)
+            if self.monitor is not None and c.eval_every and step % c.eval_every == 0 and step != until:
+                self.evaluate()
+                self.checkpoint()
+
+    def evaluate(self) -> dict[str, Any] | None:
+        """Roll the attached learner out with the monitor (None without one); logged in ``metrics``."""
+        if self.monitor is None:
+            return None
+        result = self.monitor(self.bundle())
+        entry = {"step": self._attached().step, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
+        self.metrics["eval"].append(entry)
+        self.tick(success=f"{result['successes']}/{result['episodes']}")
+        return entry
+
+    def bundle(self) -> ckpt.PolicyBundle:
+        """The attached learner as it is now (evaluation weights), runnable like a saved policy."""
+        learner, data = self._attached(), self.data
+        return ckpt.PolicyBundle(self.config.algo, learner.eval_policy(), data.obs_spec, data.obs_norm, data.action_norm,
+                                 self.action, self.execution, self.record, self.out, data.relative)
+
+    def tick(self, done: int | None = None, message: str | None = None, **fields: Any) -> None:
+        """Report progress: the learner's step (or ``done``), updated fields, an optional message line."""
+        for k, v in fields.items():
+            self._fields[k] = f"{v:.4g}" if isinstance(v, float) else str(v)
+        if done is None and self.learner is not None:
+            done = self.learner.step
+        self.progress(Tick(self.stage, done, self.total_steps, dict(self._fields), message))
+
+    # ---------------------------------------------------------------------------- 5-6. checkpoints, summary
+    def checkpoint(self, extra: dict[str, Any] | None = None) -> None:
+        """Save the policy, the train state (with the algorithm's ``extra``), metrics and curves."""
+        from demo.train.plots import plot_training
+
+        learner, data = self._attached(), self.data
+        ckpt.save_policy(self.out, learner.eval_weights(), data.obs_norm, data.action_norm)
+        ckpt.save_train_state(self.out, {
+            "step": learner.step,
+            "phase_start": learner.phase_start,
+            "phase_steps": learner.phase_steps,
+            "policy": learner.policy.state_dict(),
+            "ema": learner.ema.shadow if learner.ema is not None else {},
+            "optimizer": learner.optimizer.state_dict(),
+            "numpy_rng": json.dumps(self.rng.bit_generator.state),
+            "torch_rng": torch.get_rng_state(),
+            "metrics": json.dumps(self.metrics),
+            "extra": json.dumps(extra or {}),
+        })
+        ckpt.write_json(self.out / ckpt.METRICS_FILE, self.metrics)
+        plot_training(self.metrics, self.out / ckpt.CURVES_FILE, title=self.title)
+
+    def finish(self, extra: dict[str, Any] | None = None, **final: Any) -> dict[str, Any]:
+        """Final metrics, a last checkpoint (with ``extra``) and the run's summary (``final`` added)."""
+        learner, m = self._attached(), self.metrics
+        m["final"] = {
+            "step": learner.step,
+            "train_loss": m["train_loss"][-1][1] if m["train_loss"] else None,
+            "val_loss": m["val_loss"][-1][1] if m["val_loss"] else None,
+            "success_rate": m["eval"][-1]["success_rate"] if m["eval"] else None,
+            "seconds": time.perf_counter() - self._started,
+            "expert_labels": self.record["data"]["expert_labels"],
+            **final,
+        }
+        ckpt.write_run(self.out, self.record)
+        self.checkpoint(extra)
+        data = self.record["data"]
+        return {"out": str(self.out), "algo": self.record["algo"], **m["final"],
+                "train_episodes": len(data["train_episodes"]), "val_episodes": len(data["val_episodes"]),
+                "train_frames": data["train_frames"]}
+
+    def _attached(self) -> Learner:
+        if self.learner is None or self.data is None:
+            raise RuntimeError("no learner attached: call TrainingRun.begin first")
+        return self.learner
+
+
+def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner: Learner, execution: ExecConfig,
+               command: str | None, algo_record: dict[str, Any] | None = None,
+               seeds: np.ndarray | None = None) -> dict[str, Any]:
+    """What ``run.json`` says of a run: what it trained on, how, and how to execute the policy."""
+    used = np.union1d(data.train_episodes, data.val_episodes)
+    seeds = np.zeros(0, int) if seeds is None else np.asarray(seeds)
+    return {
+        "algo": (algo_record or {}).get("name", config.algo),
+        "created": ckpt.now(),
+        "command": command,
+        "policy": ckpt.policy_record(config.algo, learner.policy, data.obs_spec, meta.action, execution, data.relative),
+        "task": meta.task,
+        "robot": meta.robot,
+        "fps": meta.fps,
+        "data": {
+            "path": str(Path(config.data).resolve()),
+            "episodes_total": len(data.ends),
+            "train_episodes": data.train_episodes.tolist(),
+            "val_episodes": data.val_episodes.tolist(),
+            "train_frames": data.frames(data.train_episodes),
+            "val_frames": data.frames(data.val_episodes),
+            # Every labelled frame of every episode used (validation too) cost one expert query.
+            "expert_labels": data.frames(used),
+            "seeds": [int(s) for s in seeds[seeds >= 0]],
+        },
+        "train": config.to_json(),
+        **({"dagger": algo_record} if algo_record else {}),
+        "versions": {"torch": torch.__version__, "numpy": np.__version__},
+    }
+
+
+def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) -> None:
+    """--resume must continue the same training: same data, policy and data-shaping options."""
+    a, b = previous.get("train", {}), run["train"]
+    differ = [k for k in RESUME_KEYS if json.dumps(a.get(k)) != json.dumps(b.get(k))]
+    if previous.get("algo") != run["algo"] and "algo" not in differ:
+        differ.insert(0, "algo")
+    if str(Path(previous.get("data", {}).get("path", ""))) != str(Path(run["data"]["path"])):
+        differ.append("data")
+    if differ:
+        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps and monitoring may change)")
