@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import typer
 
+from demo.bench.faults import FaultsConfig
 from demo.cli.main import app
 from demo.cli.options import json_option
 
@@ -69,3 +70,38 @@ def bench_collect(
         )
     )
     write_json(r, json_out)
+
+
+_F = FaultsConfig()  # the benchmark's defaults live in its config dataclass
+
+
+@bench_app.command("faults")
+def bench_faults(
+    json_out: str = json_option(default="-"),
+    episodes: int = typer.Option(_F.episodes, help="Episodes each killed `reach` collection is asked for."),
+    kills: int = typer.Option(_F.kills, help="Collections killed (SIGKILL) at a random time."),
+    append_kills: int = typer.Option(_F.append_kills, help="`--append` collections killed at a random time."),
+    races: int = typer.Option(_F.races, help="`--overwrite` (collect, convert, import in turn) of a store being appended to."),
+    creates: int = typer.Option(_F.creates, help="Rounds of 3 processes creating the same new store at once."),
+    max_kill_s: float = typer.Option(_F.max_kill_s, help="Kill times are uniform in [0, this] seconds after the start."),
+    disk_mib: int = typer.Option(_F.disk_mib, help="Size of the tmpfs filled by the full-disk trial (as root)."),
+    workers: int = typer.Option(_F.workers, help="Simulation processes of each killed collection."),
+    seed: int = typer.Option(_F.seed, help="Seed of the random kill times."),
+) -> None:
+    """SIGKILLs, --overwrite races, concurrent creates and a full disk: stores readable, finished episodes lost (must be 0)."""
+    from demo.bench.faults import run
+    from demo.cli.output import report_console, table, write_json
+    from demo.cli.progress import bars
+
+    config = FaultsConfig(episodes=episodes, kills=kills, append_kills=append_kills, races=races, creates=creates,
+                          max_kill_s=max_kill_s, disk_mib=disk_mib, workers=workers, seed=seed)
+    with bars() as progress:
+        r = run(config, progress=progress)
+    columns = ["scenario", "trials", "stores readable", "no store, nothing finished", "finished episodes",
+               "finished lost", "checks failed"]
+    rows = [[s["scenario"], s["trials"], s["stores_readable"], s["no_store_nothing_finished"], s["finished_episodes"],
+             s["finished_lost"], s["checks_failed"]] for s in r["scenarios"]]
+    report_console(json_out).print(table(f"bench faults ({r['task']}, {r['seconds']:.0f} s)", columns, rows))
+    write_json(r, json_out)
+    if not r["ok"]:
+        raise typer.Exit(1)  # a finished episode was lost, or a refusal was not one clean line

@@ -2,26 +2,18 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import typer
+from rich.text import Text
 
 from demo.cli.main import app
 from demo.cli.options import json_option, overwrite_option, robot_option
-from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.output import err_console, kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
 
 SOURCES = ("scripted", "kinesthetic", "vr")
-
-
-def parse_camera(spec: str) -> tuple[str, int, int]:
-    """``NAME@WxH`` -> (name, width, height)."""
-    match = re.fullmatch(r"([A-Za-z0-9_\-]+)@(\d+)x(\d+)", spec)
-    if not match:
-        raise DemoError("--camera", f"{spec!r} is not NAME@WIDTHxHEIGHT (e.g. front@128x128)")
-    return match.group(1), int(match.group(2)), int(match.group(3))
 
 
 def task_options(blocks: int | None) -> dict:
@@ -53,18 +45,27 @@ def collect(
     camera: list[str] = typer.Option([], metavar="NAME@WxH", help="Record camera images, e.g. front@128x128 (repeatable).",
                                      show_default="none"),
     append: bool = typer.Option(False, "--append", help="Append to an existing store of the same task and robot."),
+    min_success: float = typer.Option(
+        None, "--min-success", metavar="P", min=0.0, max=1.0,
+        help="scripted: exit non-zero when the expert's success rate is below P (a fraction); the episodes stay "
+             "stored. Below 0.9 a warning is printed either way.", show_default="none",
+    ),
     overwrite: bool = overwrite_option("an existing store at --out"),
     json_out: str = json_option("the run summary"),
 ) -> None:
     """Record demonstrations (scripted experts; kinesthetic and VR-style input files)."""
     if source not in SOURCES:
         raise DemoError("--source", f"unknown source {source!r} (choose from {', '.join(SOURCES)})")
-    cameras = tuple(parse_camera(c) for c in camera)
+    from demo.sim.render import parse_camera
+
+    cameras = tuple(parse_camera(c, "--camera") for c in camera)
     if source != "scripted":
         if input is None:
             raise DemoError("--input", f"--source {source} needs an input file (--input)")
         if workers > 1 or noise > 0:
             raise DemoError("--source", f"{source} replays recorded input: --workers > 1 and --noise do not apply")
+        if min_success is not None:
+            raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
     robot_config = str(robot) if robot else None
     options = task_options(blocks)
     with bars() as progress:  # the library ticks only once the store is open
@@ -112,3 +113,9 @@ def collect(
         rows.append(("modes", ", ".join(f"{k}: {v}" for k, v in sorted(result.modes.items()))))
     report_console(json_out).print(kv_table("collected", rows))
     write_json(summary, json_out)
+    if source == "scripted":
+        from demo.collect.scripted import check_success
+
+        warning = check_success(result, min_success)  # raises below --min-success
+        if warning:
+            err_console.print(Text.assemble(("warning:", "bold yellow"), " ", warning), highlight=False, soft_wrap=True)

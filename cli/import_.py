@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
@@ -15,8 +16,8 @@ from demo.errors import DemoError
 
 
 def detect_format(src: Path) -> Format:
-    """LeRobot for a folder with meta/info.json, robomimic for an HDF5 file."""
-    if src.is_dir() and (src / "meta" / "info.json").is_file():
+    """LeRobot for a folder with meta/, robomimic for an HDF5 file."""
+    if src.is_dir() and os.path.lexists(src / "meta"):  # not meta/info.json: a link out must not be probed
         return Format.lerobot
     if src.is_file():
         with open(src, "rb") as f:

@@ -3,17 +3,31 @@ flags and calls a library function; errors become one line on stderr."""
 
 from __future__ import annotations
 
+import enum
 import os
+import re
 import sys
 import traceback
+import warnings
 from typing import Any
 
 import typer
+import typer.core
 import typer.main
+from rich.text import Text
+from typer._click.exceptions import (  # typer >= 0.29 vendors click (pinned in pyproject)
+    BadOptionUsage,
+    BadParameter,
+    ClickException,
+    MissingParameter,
+    NoArgsIsHelpError,
+    NoSuchOption,
+    UsageError,
+)
 
 from demo import __version__
 from demo.cli.output import err_console
-from demo.errors import DemoError
+from demo.errors import DemoError, one_line, os_error
 
 app = typer.Typer(
     name="demo",
@@ -72,35 +86,124 @@ def commands() -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run ``demo ARGV``; return the exit code. Every failure is one line on stderr,
+    ``error: <file>: <problem>`` (``--debug``: the traceback too), whatever the terminal width."""
     global _ARGV
     _ARGV = list(sys.argv[1:] if argv is None else argv)
     _register()
-    try:
-        rc = app(args=argv, standalone_mode=False)
-    except DemoError as exc:
-        if _DEBUG:
-            traceback.print_exc()
-        err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-        return exc.exit_code
-    except KeyboardInterrupt:
+    # Library warnings (torch, zarr, h5py) are held back: a failed command prints its one line alone.
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            rc = app(args=argv, standalone_mode=False)
+        except BaseException as exc:  # noqa: BLE001 - every failure ends here, as one line
+            if _DEBUG:
+                _show_warnings(caught)
+            return _failure(exc)
+    _show_warnings(caught)
+    return rc if isinstance(rc, int) else 0
+
+
+def _failure(exc: BaseException) -> int:
+    """Print ``exc`` as one line (and its traceback with --debug); return the exit code."""
+    if isinstance(exc, SystemExit):
+        return int(exc.code or 0) if not isinstance(exc.code, str) else 1
+    if isinstance(exc, typer.Exit):
+        return int(exc.exit_code)
+    if isinstance(exc, NoArgsIsHelpError):  # `demo bench`: the help is the answer, not an error
+        exc.show()
+        return int(exc.exit_code)
+    if isinstance(exc, (KeyboardInterrupt, typer.Abort)):
         err_console.print("[bold red]interrupted[/] (finished episodes are kept)")
         return 130
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    except typer.Exit as exc:
+    if _DEBUG and not isinstance(exc, UsageError):
+        traceback.print_exception(exc)
+    if isinstance(exc, UsageError):
+        where, problem = usage_problem(exc)
+        _print_error(where, problem)
         return int(exc.exit_code)
-    except typer.Abort:
-        err_console.print("[bold red]aborted[/]")
-        return 130
-    except Exception as exc:  # usage errors (they know how to show themselves) and the unexpected
-        if hasattr(exc, "show") and hasattr(exc, "exit_code"):
-            exc.show()
-            return int(exc.exit_code)
-        if _DEBUG:
-            traceback.print_exc()
-        err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc} (run with --debug for the traceback)")
-        return 1
-    return rc if isinstance(rc, int) else 0
+    if isinstance(exc, OSError):
+        exc = os_error(exc, fallback=_named_path(_ARGV))
+    if isinstance(exc, DemoError):
+        _print_error(exc.where, exc.problem)
+        return exc.exit_code
+    if isinstance(exc, ClickException):
+        _print_error(None, exc.format_message())
+        return int(exc.exit_code)
+    _print_error(None, f"{type(exc).__name__}: {exc} (run with --debug for the traceback)")
+    return 1
+
+
+def _print_error(where: str | None, problem: str) -> None:
+    # A Text, not markup: a message may hold brackets ("[7]", a file name) that rich would eat.
+    text = Text.assemble(("error:", "bold red"), " ", one_line(f"{where}: {problem}" if where else problem))
+    err_console.print(text, highlight=False, soft_wrap=True)  # soft_wrap: never broken at the terminal width
+
+
+def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
+    for w in caught:
+        err_console.print(Text.assemble(("warning:", "bold yellow"), " ", one_line(f"{w.category.__name__}: {w.message}")),
+                          highlight=False, soft_wrap=True)
+
+
+def usage_problem(exc: UsageError) -> tuple[str, str]:
+    """(where, problem) of a command-line mistake: the flag or argument it is about, in our words."""
+    command = _command_path(exc.ctx)
+    see = f"see {command} --help"
+    if isinstance(exc, MissingParameter) and exc.param is not None:
+        kind = "argument" if isinstance(exc.param, typer.core.TyperArgument) else "option"
+        return _param_name(exc.param), f"missing {kind} ({see})"
+    if isinstance(exc, BadParameter) and exc.param is not None:
+        message = _sentence(exc.message.removeprefix("Value error, "))  # typer's prefix for a converter's error
+        choices = _enum_choices(exc.param)
+        given = re.search(r"('.*') is not one of", message)
+        if choices and given:
+            message = f"{given.group(1)} is not one of {', '.join(choices)}"
+        return _param_name(exc.param), message
+    if isinstance(exc, NoSuchOption):
+        near = f"; did you mean {' or '.join(sorted(exc.possibilities))}?" if exc.possibilities else ""
+        return exc.option_name, f"no such option of {command}{near} ({see})"
+    if isinstance(exc, BadOptionUsage):
+        return exc.option_name, _sentence(exc.message).replace(f"Option '{exc.option_name}' ", "")
+    return command, f"{_sentence(exc.message)} ({see})"
+
+
+def _sentence(message: str) -> str:
+    text = one_line(message).rstrip(".")
+    return text[:1].lower() + text[1:] if text[:1].isupper() and not text[1:2].isupper() else text
+
+
+def _param_name(param: Any) -> str:
+    if isinstance(param, typer.core.TyperArgument):
+        return str(param.metavar or param.name).upper()
+    longs = [o for o in param.opts if o.startswith("--")]
+    return (longs or list(param.opts) or [str(param.name)])[0]
+
+
+def _enum_choices(param: Any) -> list[str]:
+    annotation = getattr(getattr(param, "type_descriptor", None), "annotation", None)
+    if isinstance(annotation, type) and issubclass(annotation, enum.Enum):
+        return [str(e.value) for e in annotation]
+    return []
+
+
+def _command_path(ctx: Any) -> str:
+    names = []
+    while ctx is not None:
+        names.append(ctx.info_name or "")
+        ctx = ctx.parent
+    return " ".join(["demo", *reversed(names[:-1])]) if names else "demo"
+
+
+def _named_path(argv: list[str]) -> str | None:
+    """What an OS error without a file name is about: the command's ``--out``, else its first
+    argument that is an existing path (the store or run it reads or edits in place)."""
+    for i, arg in enumerate(argv):
+        if arg in ("--out", "-o") and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith("--out="):
+            return arg[len("--out="):]
+    existing = [a for a in argv if not a.startswith("-") and os.path.exists(a)]
+    return existing[0] if existing else None
 
 
 if __name__ == "__main__":

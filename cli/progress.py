@@ -22,8 +22,10 @@ from demo.progress import Progress, Tick, silent
 
 
 def format_fields(fields: Mapping[str, Any]) -> str:
-    """``name value`` pairs, two spaces apart; floats with 4 significant digits."""
-    return "  ".join(f"{name} {fmt(value)}" for name, value in fields.items())
+    """``name value`` pairs, two spaces apart; floats with 4 significant digits. The field ``info``
+    is free text and shows without its name; empty values are left out."""
+    parts = (fmt(value) if name == "info" else f"{name} {fmt(value)}" for name, value in fields.items() if value != "")
+    return "  ".join(parts)
 
 
 @contextmanager

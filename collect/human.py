@@ -163,6 +163,9 @@ def record_episodes(
                 frames += len(data["action"])
                 unreachable += int(info.get("unreachable_frames", 0))
                 report(collect_tick(config.task, index + 1, count, successes, frames, time.perf_counter() - start))
+        except BaseException:
+            store.abandon()  # failed before its first episode: no store is left (see open_output)
+            raise
         finally:
             store.close()
     finally:
@@ -213,10 +216,18 @@ def as_float(where: str, name: str, value: Any) -> float:
     return v
 
 
-def check_time(where: str, t: float, previous: float | None) -> None:
+MAX_RECORDING_S = 3600.0  # one demonstration lasts minutes; an hour-long span is a broken time column
+
+
+def check_time(where: str, t: float, previous: float | None, start: float | None = None) -> None:
+    """``t`` (s) must follow ``previous`` and lie within MAX_RECORDING_S of the episode's ``start``
+    (what is played back is resampled over that span: it is a size to bound before allocating)."""
     if previous is not None and t <= previous:
         what = "repeats" if t == previous else "goes backwards"
         raise DemoError(where, f"time {what}: t={t:g} s after t={previous:g} s")
+    if start is not None and t - start > MAX_RECORDING_S:
+        raise DemoError(where, f"t={t:g} s is {t - start:g} s after the episode's first sample; an episode lasts "
+                               f"at most {MAX_RECORDING_S:g} s")
 
 
 def _short(value: Any, limit: int = 60) -> str:

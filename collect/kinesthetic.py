@@ -99,13 +99,13 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...]) -> list[Joint
                 seed = int(raw)
             except ValueError:
                 raise DemoError(where, f"'episode_seed' must be an integer, got {raw!r}") from None
-            if seed < 0:
-                raise DemoError(where, f"'episode_seed' must be >= 0, got {seed}")
+            if not 0 <= seed < 2**63:
+                raise DemoError(where, f"'episode_seed' must be a non-negative 64-bit integer, got {seed}")
         if current is None or ("episode_seed" in columns and seed != current[1]):
             close()
             current, rows = (number, seed), []
         t = _number(where, "t", cells[columns["t"]])
-        check_time(where, t, rows[-1][0] if rows else None)
+        check_time(where, t, rows[-1][0] if rows else None, rows[0][0] if rows else None)
         q = np.array([_number(where, j, cells[columns[j]]) for j in arm_joints])
         g = _number(where, "gripper", cells[columns["gripper"]])
         if not 0.0 <= g <= 1.0:

@@ -200,7 +200,13 @@ def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
 
 
 def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
-    """Create the output store, or open it to append after checking it records the same thing."""
+    """Create the output store, or open it to append after checking it records the same thing.
+
+    Either way the store's writer lock is held from the start (another writer, ``--overwrite``
+    included, is refused); a refused append writes nothing. A created store replaces what was at
+    ``out`` only with its first committed episode: close it with ``EpisodeStore.abandon`` (or leave
+    a ``with`` block by the exception) when collection fails before then, and nothing is left.
+    """
     if append and out.exists():
         from demo.sim.robot_record import same_robot
 
@@ -219,7 +225,7 @@ def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> Ep
             if a != b
         ]
         if mismatch:
-            store.close()
+            store.abandon()
             raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
         store.update_meta(provenance=[*have.provenance, *meta.provenance])
         return store
@@ -238,6 +244,31 @@ class CollectResult:
     @property
     def success_rate(self) -> float:
         return self.successes / max(1, self.episodes)
+
+
+# Below this share of successful episodes a scripted run is suspect: the experts succeed on 50/50
+# episodes of every task on the built-in arm, so a lower rate points at the robot, the task options,
+# the operator profile or the noise rather than at chance.
+SUCCESS_WARNING = 0.9
+
+
+def check_success(result: CollectResult, min_success: float | None = None) -> str | None:
+    """Judge a finished run's measured success rate (``result.success_rate``, a fraction).
+
+    Raises a :class:`DemoError` naming the store when it is below ``min_success`` (a fraction in
+    [0, 1]; None: no threshold); the episodes already collected stay stored. Otherwise returns a
+    one-line warning when it is below :data:`SUCCESS_WARNING`, else None.
+    """
+    if min_success is not None and not 0.0 <= min_success <= 1.0:
+        raise DemoError("--min-success", f"must be a fraction in [0, 1], got {min_success}")
+    rate = result.success_rate
+    if min_success is not None and rate < min_success:
+        raise DemoError(result.path, f"expert success {rate:.2f} < --min-success {min_success:g} "
+                                     f"({result.episodes} episodes stay stored)")
+    if rate < SUCCESS_WARNING:
+        return (f"{result.path}: expert success {rate:.2f} ({result.successes}/{result.episodes} episodes) is below "
+                f"{SUCCESS_WARNING:g}: check the robot config, task options, --operator and --noise")
+    return None
 
 
 def collect_tick(task: str, done: int, total: int, successes: int, frames: int, seconds: float) -> Tick:
@@ -271,14 +302,13 @@ def collect_scripted(
         meta = store_meta(config, env)
     finally:
         env.close()
-    store = open_output(out, meta, append, overwrite)
-    if append:
-        config.first_episode = max(config.first_episode, _next_episode_index(store, config))
     report = or_silent(progress)
     done = successes = frames = 0
     modes: dict[str, int] = {}
     start = time.perf_counter()
-    try:
+    with open_output(out, meta, append, overwrite) as store:  # an exception abandons it: see open_output
+        if append:
+            config.first_episode = max(config.first_episode, _next_episode_index(store, config))
         report(collect_tick(config.task, 0, config.episodes, 0, 0, 0.0))
         for batch in run_episodes(config, workers):
             store.append_episodes([(data, info) for _, data, info in batch])
@@ -289,8 +319,6 @@ def collect_scripted(
                 if info.get("expert_mode"):
                     modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
                 report(collect_tick(config.task, done, config.episodes, successes, frames, time.perf_counter() - start))
-    finally:
-        store.close()
     return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes)
 
 

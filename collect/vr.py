@@ -68,6 +68,7 @@ from demo.progress import Progress
 from demo.sim.geometry import mat_to_quat, quat_conj, quat_mul
 
 QUAT_NORM_TOL = 0.01
+MAX_POSITION = 1000.0  # tracker units (metres or so): a hand this far from the origin is a broken sample
 POSE_KEYS = {"t", "pos", "quat", "grip", "engaged"}
 HEADER_KEYS = {"episode_seed", "operator", "task"}
 
@@ -150,8 +151,10 @@ def parse_poses(path: str | Path, task: str | None = None) -> list[PoseTrack]:
         if missing:
             raise DemoError(where, f"pose lacks {', '.join(missing)}")
         t = as_float(where, "t", obj["t"])
-        check_time(where, t, rows[-1][0] if rows else None)
+        check_time(where, t, rows[-1][0] if rows else None, rows[0][0] if rows else None)
         pos = as_floats(where, "pos", obj["pos"], 3)
+        if float(np.max(np.abs(pos))) > MAX_POSITION:
+            raise DemoError(where, f"'pos' is more than {MAX_POSITION:g} tracker units from the origin")
         quat = as_floats(where, "quat", obj["quat"], 4)
         norm = float(np.linalg.norm(quat))
         if abs(norm - 1.0) > QUAT_NORM_TOL:

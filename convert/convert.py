@@ -16,7 +16,6 @@ MuJoCo's ``mj_kinematics``.
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -236,7 +235,8 @@ def convert_store(
 ) -> ConvertResult:
     """Write a copy of the store at ``src_path`` with actions in ``opts.to`` to ``out``.
 
-    ``progress`` counts frames written (stage ``convert -> <to>``), from the moment ``out`` exists.
+    ``progress`` counts frames written (stage ``convert -> <to>``) once the output is created; the
+    output appears at ``out``, replacing what is there, only when it is complete (nothing on failure).
     """
     started = time.perf_counter()
     report = or_silent(progress)
@@ -263,7 +263,8 @@ def convert_store(
         anchor_sources: dict[str, int] = {}
         check: dict[str, float] | None = None
         skip = {"episode_index", "start", "length", "duration_s"}
-        writer = EpisodeStore.create(out, new_meta, overwrite=overwrite, robot_from=src_path)
+        # Atomic: the conversion appears at ``out`` (replacing what is there) only once it is complete.
+        writer = EpisodeStore.create(out, new_meta, overwrite=overwrite, robot_from=src_path, atomic=True)
         done_frames = 0
         stage = f"convert -> {dst.name}"
         report(Tick(stage, 0, store.num_frames, {"episodes": 0}))
@@ -303,7 +304,7 @@ def convert_store(
                         info.update(ik_failed_frames=int((~r.converged).sum()), ik_max_pos_err=float(r.pos_err.max()),
                                     ik_max_rot_err=float(r.rot_err.max()))
                     batch.append((data, info))
-                writer.append_episodes(batch)
+                writer.append_episodes(batch, origin=[f"{src_path} episode {int(i)}" for i in block])
                 done_frames += int(seg.ends[-1])
                 report(Tick(stage, done_frames, store.num_frames, {"episodes": int(block[-1]) + 1}))
             record = {
@@ -320,8 +321,7 @@ def convert_store(
             }
             writer.update_meta(provenance=[*new_meta.provenance, record])
         except BaseException:
-            writer.close()
-            shutil.rmtree(out, ignore_errors=True)  # no half-converted store is left behind
+            writer.abandon()  # no half-converted store is left behind; ``out`` keeps what it held
             raise
         writer.close()
     return ConvertResult(str(out), src.name, dst.name, store.num_episodes, done_frames,

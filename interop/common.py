@@ -1,16 +1,16 @@
 """What every format converter shares: staged output, the report, episode-table columns, progress.
 
-Converters never write into ``--out`` directly: they build the result in a hidden sibling
-(``.NAME.tmp-PID``) and rename it into place at the end, so a failed or interrupted export/import
-leaves no half-written dataset, and an existing ``--out`` is replaced only with ``overwrite=True``
-and only when it looks like the kind of thing being written.
+Converters never write into ``--out`` directly: holding ``--out``'s writer lock (the store's,
+:mod:`demo.store.writer_lock`) from the start, they build the result in a hidden sibling
+(``.NAME.tmp-PID``) and swap it into place at the end (:mod:`demo.store.swap`), so a failed or
+interrupted export/import leaves no half-written dataset, a store another process is writing is
+never replaced, and an existing ``--out`` is replaced only with ``overwrite=True`` and only when it
+looks like the kind of thing being written.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -22,8 +22,9 @@ import pyarrow as pa
 
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
-from demo.store import EpisodeStore, FeatureSpec
+from demo.store import EpisodeStore, FeatureSpec, swap
 from demo.store.episode_table import FIXED_COLUMNS, MASK_PREFIX
+from demo.store.writer_lock import WriterLock
 
 T = TypeVar("T")
 
@@ -102,40 +103,32 @@ def _occupied(path: Path) -> bool:
 def staged_output(
     out: Path, *, overwrite: bool, looks_like: Callable[[Path], bool], kind: str, is_dir: bool
 ) -> Iterator[Path]:
-    """Yield a temporary path next to ``out``; on success it replaces ``out`` atomically-ish.
+    """Yield a temporary path next to ``out``; on success it replaces ``out`` by an atomic swap.
 
-    ``looks_like(out)`` guards ``overwrite``: an existing ``out`` that is not a ``kind`` is never
-    deleted. On any exception the temporary is removed and ``out`` is left untouched.
+    ``out``'s writer lock is held throughout (refused with one line while another process holds
+    it). ``looks_like(out)`` guards ``overwrite``: an existing ``out`` that is not a ``kind`` is
+    never deleted. On any exception the temporary is removed and ``out`` is left untouched.
     """
     out = Path(out)
-    if _occupied(out):
-        if not overwrite:
-            raise DemoError(out, "already exists (pass --overwrite to replace it, or choose another --out)")
-        if not looks_like(out):
-            raise DemoError(out, f"exists and is not a {kind}; refusing to overwrite it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    _remove(tmp)
-    if is_dir:
-        tmp.mkdir()
+    lock = WriterLock.acquire(out)
     try:
-        yield tmp
-    except BaseException:
-        _remove(tmp)
-        raise
-    old = out.with_name(f".{out.name}.old-{os.getpid()}")
-    _remove(old)
-    if out.exists() or out.is_symlink():
-        os.replace(out, old)
-    os.replace(tmp, out)
-    _remove(old)
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    elif path.exists() or path.is_symlink():
-        path.unlink()
+        swap.recover(out)
+        if _occupied(out):
+            if not overwrite:
+                raise DemoError(out, "already exists (pass --overwrite to replace it, or choose another --out)")
+            if not looks_like(out):
+                raise DemoError(out, f"exists and is not a {kind}; refusing to overwrite it")
+        tmp = swap.staging_path(out)
+        if is_dir:
+            tmp.mkdir()
+        try:
+            yield tmp
+        except BaseException:
+            swap.remove(tmp)
+            raise
+        swap.publish(tmp, out)
+    finally:
+        lock.release()
 
 
 def check_not_same(src: Path, out: Path) -> None:

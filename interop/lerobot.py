@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -68,6 +69,18 @@ from demo.interop.common import (
     short_name,
     staged_output,
     track,
+)
+from demo.interop.untrusted import (
+    MAX_EPISODE_FRAMES,
+    check_count,
+    check_feature,
+    check_fps,
+    check_info,
+    check_meta,
+    check_template,
+    contained,
+    inside,
+    store_key,
 )
 from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
@@ -440,33 +453,46 @@ def _arrow(feature: dict[str, Any], values: np.ndarray) -> pa.Array:
 
 
 # ================================================================================================ import
+MAX_JSON_BYTES = 64 * 2**20  # meta/info.json is a few kB; a bigger one is not metadata
+DATA_FIELDS = ("chunk_index", "file_index")
+VIDEO_FIELDS = ("video_key", "chunk_index", "file_index", "episode_chunk", "episode_index")
+# Integer columns of meta/episodes and what bounds them.
+EPISODE_INTEGERS = ("episode_index", "length", "data/chunk_index", "data/file_index", "dataset_from_index",
+                    "dataset_to_index")
+
+
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        value = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        if path.stat().st_size > MAX_JSON_BYTES:
+            raise DemoError(path, f"is larger than {MAX_JSON_BYTES // 2**20} MiB: not dataset metadata")
+        value = json.loads(path.read_bytes().decode("utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise DemoError(path, f"is not valid JSON ({first_line(exc)})") from None
     if not isinstance(value, dict):
         raise DemoError(path, "is not a JSON object")
     return value
 
 
-def _read_parquet(path: Path) -> pa.Table:
+def _read_parquet(root: Path, path: Path) -> pa.Table:
+    """A parquet file of the dataset at ``root`` (refused if it leads outside it)."""
+    inside(root, path)
     if not path.is_file():
         raise DemoError(path, "is missing")
     try:
         return pq.read_table(path)
-    except (pa.ArrowException, OSError) as exc:
+    except (pa.ArrowException, OSError, ValueError) as exc:
         raise DemoError(path, f"corrupted parquet ({first_line(exc)})") from None
 
 
 def read_info(root: Path) -> dict[str, Any]:
-    """``meta/info.json`` of a LeRobot v3.0 folder; clear errors for anything else."""
+    """``meta/info.json`` of a LeRobot v3.0 folder, its numbers bounded and its path templates
+    checked (:mod:`demo.interop.untrusted`); clear errors for anything else."""
     root = Path(root)
     if not root.exists():
         raise DemoError(root, "no such dataset")
     if not root.is_dir():
         raise DemoError(root, "is not a LeRobot dataset folder (not a directory)")
-    info_path = root / INFO_PATH
+    info_path = inside(root, root / INFO_PATH)
     if not info_path.is_file():
         raise DemoError(root, f"is not a LeRobot dataset (no {INFO_PATH})")
     info = _read_json(info_path)
@@ -482,14 +508,24 @@ def read_info(root: Path) -> dict[str, Any]:
             raise DemoError(info_path, f"has no {key!r}")
     if not isinstance(info["features"], dict) or "action" not in info["features"]:
         raise DemoError(info_path, "has no 'action' feature")
+    if not all(isinstance(f, dict) for f in info["features"].values()):
+        raise DemoError(info_path, "features must map names to {dtype, shape, names} objects")
+    info["fps"] = check_fps(info["fps"], info_path)
+    for key in ("total_episodes", "total_frames"):
+        info[key] = check_count(info[key], info_path, key)
+    if info.get("data_path") is not None:
+        check_template(info["data_path"], info_path, "data_path", DATA_FIELDS)
+    if info.get("video_path") is not None:  # videos are not read yet; a template leading out is refused anyway
+        check_template(info["video_path"], info_path, "video_path", VIDEO_FIELDS)
     return info
 
 
 def _episodes_table(root: Path, info: dict[str, Any]) -> pa.Table:
-    files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+    folder = inside(root, root / "meta" / "episodes")
+    files = sorted(folder.glob("chunk-*/file-*.parquet"))
     if not files:
-        raise DemoError(root / "meta" / "episodes", "has no episodes parquet files")
-    tables = [_read_parquet(f) for f in files]
+        raise DemoError(folder, "has no episodes parquet files")
+    tables = [_read_parquet(root, f) for f in files]
     try:
         table = pa.concat_tables(tables, promote_options="permissive")
     except pa.ArrowException as exc:
@@ -497,29 +533,45 @@ def _episodes_table(root: Path, info: dict[str, Any]) -> pa.Table:
     for column in ("episode_index", "length"):
         if column not in table.column_names:
             raise DemoError(files[0], f"has no column {column!r}")
+    for column in EPISODE_INTEGERS:
+        if column in table.column_names:
+            _integers(table.column(column), f"{folder}: {column}")
     order = np.argsort(table.column("episode_index").to_numpy(), kind="stable")
     table = table.take(pa.array(order))
     indices = table.column("episode_index").to_numpy()
     if not np.array_equal(indices, np.arange(len(indices))):
         raise DemoError(files[0].parent, "episode_index is not 0..N-1")
-    if len(indices) != int(info["total_episodes"]):
+    if len(indices) != info["total_episodes"]:
         raise DemoError(root / INFO_PATH, f"total_episodes is {info['total_episodes']} but meta/episodes lists {len(indices)}")
     lengths = table.column("length").to_numpy()
-    if int(lengths.sum()) != int(info["total_frames"]):
+    if int(lengths.sum()) != info["total_frames"]:
         raise DemoError(
             root / INFO_PATH, f"total_frames is {info['total_frames']} but the episode lengths add up to {int(lengths.sum())}"
         )
     return table
 
 
+def _integers(column: pa.ChunkedArray, where: str) -> None:
+    """An integer column of counts or indices: no missing values, each within 0..MAX_EPISODE_FRAMES
+    (so that sums cannot overflow and no range built from them is larger than the data)."""
+    if not pa.types.is_integer(column.type):
+        raise DemoError(where, f"has type {column.type}, expected integers")
+    if column.null_count:
+        raise DemoError(where, "has missing values")
+    values = column.to_numpy()
+    if len(values) and (values.min() < 0 or values.max() > MAX_EPISODE_FRAMES):
+        raise DemoError(where, f"has values outside 0..{MAX_EPISODE_FRAMES}")
+
+
 def _tasks(root: Path) -> dict[int, str]:
-    path = root / TASKS_PATH
+    path = inside(root, root / TASKS_PATH)
     if not path.exists():
         return {}
-    table = _read_parquet(path)
+    table = _read_parquet(root, path)
     names = [n for n in ("task", "__index_level_0__") if n in table.column_names]
     if "task_index" not in table.column_names or not names:
         raise DemoError(path, "has no task / task_index columns")
+    _integers(table.column("task_index"), f"{path}: task_index")
     return {int(i): str(t) for i, t in zip(table.column("task_index").to_pylist(), table.column(names[0]).to_pylist())}
 
 
@@ -548,22 +600,31 @@ def _to_numpy(array: pa.Array | pa.ChunkedArray, where: str) -> np.ndarray:
     return array.to_numpy(zero_copy_only=False).reshape(n, *shape)
 
 
-def _decode_images(array: pa.Array | pa.ChunkedArray, where: str) -> np.ndarray:
+def _decode_images(array: pa.Array | pa.ChunkedArray, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """PNG/JPEG bytes -> uint8 ``[T, H, W, C]``; each image's size is checked against the declared
+    ``shape`` from its header, before it is decoded."""
     from PIL import Image
 
     if isinstance(array, pa.ChunkedArray):
         array = array.combine_chunks()
     if not pa.types.is_struct(array.type) or array.type.get_field_index("bytes") < 0:
         raise DemoError(where, f"image column has type {array.type}, expected struct<bytes, path>")
+    if not pa.types.is_binary(array.type.field("bytes").type) and not pa.types.is_large_binary(array.type.field("bytes").type):
+        raise DemoError(where, f"image bytes have type {array.type.field('bytes').type}, expected binary")
     frames = []
     for i, blob in enumerate(array.field("bytes").to_pylist()):
         if blob is None:
             raise DemoError(where, f"frame {i} has no embedded image bytes")
         try:
             image = Image.open(io.BytesIO(blob))
+            if (image.height, image.width) != tuple(shape[:2]):
+                raise DemoError(where, f"frame {i} is {image.width}x{image.height} pixels, the feature declares "
+                                       f"{shape[1]}x{shape[0]}")
             if image.mode not in ("L", "RGB", "RGBA"):
                 image = image.convert("RGB")
             img = np.asarray(image)
+        except DemoError:
+            raise
         except Exception as exc:  # PIL raises many types for bad image data
             raise DemoError(where, f"frame {i} is not a readable image ({first_line(exc)})") from None
         frames.append(img[:, :, None] if img.ndim == 2 else img)
@@ -573,17 +634,21 @@ def _decode_images(array: pa.Array | pa.ChunkedArray, where: str) -> np.ndarray:
     return np.stack(frames)
 
 
-def _foreign_plan(info: dict[str, Any], report: InteropReport) -> tuple[list[Column], StoreMeta]:
-    """Store keys and metadata for a LeRobot dataset not written by demo."""
+def _foreign_plan(info: dict[str, Any], info_path: Path, report: InteropReport) -> tuple[list[Column], StoreMeta]:
+    """Store keys and metadata for a LeRobot dataset not written by demo (names made store keys,
+    shapes and dtypes bounded: :mod:`demo.interop.untrusted`)."""
     features: dict[str, dict[str, Any]] = info["features"]
     structural = {*FRAME_COLUMNS, DONE}
     columns: list[Column] = []
     specs: dict[str, FeatureSpec] = {}
     action_spec: ActionSpec | None = None
+    taken = {"action"}
     for name, f in features.items():
         if name in structural:
             continue
-        dtype, shape = str(f.get("dtype")), tuple(int(s) for s in f.get("shape", ()))
+        dtype, shape = str(f.get("dtype")), f.get("shape", [])
+        if not isinstance(shape, list) or len(shape) > 8:
+            raise DemoError(info_path, f"feature {name!r}: shape {shape!r} is not a list of sizes")
         names = _flat_names(f.get("names"))
         if dtype == "video":
             report.dropped.append(f"{name}: mp4 video feature (no video decoder installed; re-export with images embedded)")
@@ -592,11 +657,9 @@ def _foreign_plan(info: dict[str, Any], report: InteropReport) -> tuple[list[Col
             report.dropped.append(f"{name}: per-frame strings (a store holds numeric arrays only)")
             continue
         if dtype == "image":
-            if name.startswith("observation.images."):
-                key = "obs.image_" + name[len("observation.images."):].replace(".", "_")
-            else:
-                key = "obs.image_" + name.replace(".", "_")
-            hwc = _image_shape(shape, names)
+            camera = name[len("observation.images."):] if name.startswith("observation.images.") else name
+            key = store_key("obs", "image_" + camera.replace(".", "_"), taken, info_path)
+            hwc, _ = check_feature(key, _image_shape(tuple(shape), names, info_path), "uint8", info_path)
             columns.append(Column(key, name, "image", hwc, "uint8"))
             specs[key] = FeatureSpec(hwc, "uint8", f"camera {name}", "rgb")
             continue
@@ -606,7 +669,7 @@ def _foreign_plan(info: dict[str, Any], report: InteropReport) -> tuple[list[Col
             report.dropped.append(f"{name}: dtype {dtype!r} unknown")
             continue
         if name == "action":
-            width = int(np.prod(shape, dtype=np.int64)) if shape else 1
+            width = math.prod(check_feature("action", shape, dtype, info_path)[0])
             labels = tuple(names) if names and len(names) == width else tuple(f"a{i}" for i in range(width))
             action_spec = ActionSpec("unknown", labels, ("",) * width, frame="unknown",
                                      description="imported from LeRobot; representation not recorded",
@@ -615,30 +678,30 @@ def _foreign_plan(info: dict[str, Any], report: InteropReport) -> tuple[list[Col
                 report.dropped.append(f"action: {dtype} values stored as float32 (a store's actions are float32)")
             columns.append(Column("action", name, "array", (width,), "float32"))
             continue
+        prefix, rest = "info", name
         if name.startswith("observation."):
-            key = "obs." + name[len("observation."):].replace(".", "_")
+            prefix, rest = "obs", name[len("observation."):]
         elif name.startswith(("obs.", "sim.", "info.")):
-            key = name
+            prefix, rest = name.split(".", 1)
         elif name.startswith("next."):
-            key = "info." + name[len("next."):].replace(".", "_")
-        else:
-            key = "info." + name.replace(".", "_")
-        store_shape = shape if shape != (1,) else (1,)
-        columns.append(Column(key, name, "array", store_shape, dtype))
-        specs[key] = FeatureSpec(store_shape, dtype, f"LeRobot feature {name}",
-                                 names=tuple(names) if names and len(names) == int(np.prod(store_shape)) else None)
+            rest = name[len("next."):]
+        key = store_key(prefix, rest.replace(".", "_"), taken, info_path)
+        store_shape, store_dtype = check_feature(key, shape, dtype, info_path)
+        columns.append(Column(key, name, "array", store_shape, store_dtype))
+        specs[key] = FeatureSpec(store_shape, store_dtype, f"LeRobot feature {name}",
+                                 names=tuple(names) if names and len(names) == math.prod(store_shape) else None)
     if action_spec is None:
-        raise DemoError(INFO_PATH, "has no 'action' feature")
+        raise DemoError(info_path, "has no 'action' feature")
     meta = StoreMeta(
-        fps=float(info["fps"]), features=specs, action=action_spec, robot={"name": info.get("robot_type") or "unknown"}
+        fps=info["fps"], features=specs, action=action_spec, robot={"name": str(info.get("robot_type") or "unknown")[:200]}
     )
     return columns, meta
 
 
-def _image_shape(shape: tuple[int, ...], names: list[str] | None) -> tuple[int, int, int]:
+def _image_shape(shape: tuple[Any, ...], names: list[str] | None, info_path: Path) -> tuple[int, int, int]:
     """``[H, W, C]`` from a declared image shape, which older datasets give as ``[C, H, W]``."""
-    if len(shape) != 3:
-        raise DemoError(INFO_PATH, f"image feature shape {list(shape)} is not 3-D")
+    if len(shape) != 3 or not all(isinstance(s, int) and not isinstance(s, bool) for s in shape):
+        raise DemoError(info_path, f"image feature shape {list(shape)} is not 3 sizes")
     if names == ["channels", "height", "width"] or (shape[2] not in (1, 3, 4) and shape[0] in (1, 3, 4)):
         return (shape[1], shape[2], shape[0])
     return (shape[0], shape[1], shape[2])
@@ -672,17 +735,13 @@ def import_lerobot(
     tasks = _tasks(root)
     extras = info.get(EXTRA_KEY) if isinstance(info.get(EXTRA_KEY), dict) else None
     if extras is not None:
-        try:
-            columns = [Column.from_json(c) for c in extras["columns"]]
-            meta = StoreMeta.from_json(extras["store_meta"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DemoError(info_path, f"malformed '{EXTRA_KEY}' metadata ({first_line(exc)})") from None
+        columns, meta = _own_plan(extras, info_path)
         used = {c.feature for c in columns} | set(FRAME_COLUMNS) | {DONE}
         for name in info["features"]:
             if name not in used:
                 report.dropped.append(f"{name}: feature added after the export by demo (not in its key map)")
     else:
-        columns, meta = _foreign_plan(info, report)
+        columns, meta = _foreign_plan(info, info_path, report)
         task_list = [tasks[i] for i in sorted(tasks)]
         meta.task = {"name": task_list[0] if len(task_list) == 1 else "lerobot", "lerobot_tasks": task_list}
     for c in columns:
@@ -693,7 +752,7 @@ def import_lerobot(
     if extras is None:
         report.notes.append("success is not recorded in a LeRobot dataset: every episode is marked success=True"
                             if "next.success" not in info["features"] else "success = next.success of each episode's last frame")
-    data_path = str(info.get("data_path") or DATA_PATH)
+    data_path = info.get("data_path") or DATA_PATH
     has_location = {"data/chunk_index", "data/file_index"} <= set(episodes.column_names)
 
     rows_in_files: dict[Path, int] = {}
@@ -703,18 +762,18 @@ def import_lerobot(
         for i in range(episodes.num_rows):
             row = {k: episodes.column(k)[i].as_py() for k in episodes.column_names if not k.startswith("stats/")}
             if has_location:
-                rel = data_path.format(chunk_index=int(row["data/chunk_index"]), file_index=int(row["data/file_index"]))
-                path = root / rel
+                rel = data_path.format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+                path = contained(root, rel, info_path, "data_path")
             else:  # no file index per episode: read every data file once
-                path = root / "data"
+                path = inside(root, root / "data")
             if cache[0] != path:
                 if has_location:
-                    cache = (path, _read_parquet(path))
+                    cache = (path, _read_parquet(root, path))
                 else:
                     files = sorted(path.glob("chunk-*/file-*.parquet"))
                     if not files:
                         raise DemoError(path, "has no chunk-*/file-*.parquet data files")
-                    cache = (path, pa.concat_tables([_read_parquet(f) for f in files], promote_options="permissive"))
+                    cache = (path, _concat(path, [_read_parquet(root, f) for f in files]))
                 rows_in_files[path] = cache[1].num_rows
             table = cache[1]
             yield i, row, path, table
@@ -735,8 +794,12 @@ def import_lerobot(
             if sum(rows_in_files.values()) != int(info["total_frames"]):
                 raise DemoError(root / "data", f"the data files hold {sum(rows_in_files.values())} frames but "
                                 f"info.json total_frames is {info['total_frames']} (mismatched lengths)")
-            restore_columns(store, [(n[len(EPISODE_COLUMN_PREFIX):], episodes.column(n).combine_chunks())
-                                    for n in episode_columns])
+            try:
+                restore_columns(store, [(n[len(EPISODE_COLUMN_PREFIX):], episodes.column(n).combine_chunks())
+                                        for n in episode_columns])
+            except (pa.ArrowException, TypeError, ValueError) as exc:
+                raise DemoError(root / "meta" / "episodes", f"per-episode columns {EPISODE_COLUMN_PREFIX}* cannot be "
+                                f"restored ({first_line(exc)})") from None
         finally:
             store.close()
     report.episodes = int(episodes.num_rows)
@@ -768,9 +831,10 @@ def _episode_from_table(
     ep = ep.take(pa.array(order))
     if not np.array_equal(ep.column("frame_index").to_numpy(), np.arange(length)):
         raise DemoError(path, f"episode {i}: frame_index is not 0..{length - 1}")
-    if "index" in ep.column_names and "dataset_from_index" in row and row["dataset_from_index"] is not None:
-        index = ep.column("index").to_numpy()
-        if not np.array_equal(index, np.arange(int(row["dataset_from_index"]), int(row["dataset_to_index"]))):
+    if "index" in ep.column_names and row.get("dataset_from_index") is not None:
+        start, stop = row["dataset_from_index"], row.get("dataset_to_index")
+        # The span is checked against the length before a range is built from it.
+        if stop is None or stop - start != length or not np.array_equal(ep.column("index").to_numpy(), np.arange(start, stop)):
             raise DemoError(path, f"episode {i}: index does not span dataset_from_index..dataset_to_index")
     data: dict[str, np.ndarray] = {}
     state: np.ndarray | None = None
@@ -779,7 +843,7 @@ def _episode_from_table(
             raise DemoError(path, f"has no column {c.feature!r}")
         where = f"{path}: {c.feature}"
         if c.kind == "image":
-            data[c.key] = _decode_images(ep.column(c.feature), where)
+            data[c.key] = _decode_images(ep.column(c.feature), c.shape, where)
             if data[c.key].shape[1:] != c.shape:
                 raise DemoError(where, f"images are {list(data[c.key].shape[1:])}, the feature declares {list(c.shape)}")
             continue
@@ -796,9 +860,10 @@ def _episode_from_table(
         if ours and values.dtype != np.dtype(c.dtype):
             raise DemoError(where, f"dtype {values.dtype} does not match {c.dtype}")
         data[c.key] = values.astype(c.dtype, copy=False)
-    task_list = row.get("tasks") or []
-    task_index = int(ep.column("task_index")[0].as_py()) if "task_index" in ep.column_names else None
-    task = tasks.get(task_index, task_list[0] if task_list else "") if task_index is not None else (task_list[0] if task_list else "")
+    task_list = row.get("tasks") if isinstance(row.get("tasks"), list) else []
+    listed = str(task_list[0]) if task_list else ""
+    task_index = ep.column("task_index")[0].as_py() if "task_index" in ep.column_names and length else None
+    task = tasks.get(task_index, listed) if isinstance(task_index, int) else listed
     episode_info: dict[str, Any] = {}
     if ours:
         for key in ("success", "seed", "source", "operator", "task"):
@@ -810,4 +875,32 @@ def _episode_from_table(
         if "next.success" in ep.column_names:
             success = bool(np.asarray(_to_numpy(ep.column("next.success"), str(path))).reshape(length, -1)[-1].any())
         episode_info = {"success": success, "seed": -1, "source": "imported", "operator": "", "task": task}
-    return data, append_info(episode_info)
+    return data, append_info(check_info(episode_info, f"{path}: episode {i}"))
+
+
+def _concat(where: Path, tables: list[pa.Table]) -> pa.Table:
+    try:
+        return pa.concat_tables(tables, promote_options="permissive")
+    except pa.ArrowException as exc:
+        raise DemoError(where, f"data files do not agree ({first_line(exc)})") from None
+
+
+COLUMN_KINDS = ("state", "image", "array")
+
+
+def _own_plan(extras: dict[str, Any], info_path: Path) -> tuple[list[Column], StoreMeta]:
+    """The key map and store metadata demo recorded under ``"demo"`` in info.json, checked like
+    foreign metadata: valid keys, bounded shapes, numeric dtypes, slices inside the state."""
+    try:
+        columns = [Column.from_json(c) for c in extras["columns"]]
+        meta = StoreMeta.from_json(extras["store_meta"])
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
+        raise DemoError(info_path, f"malformed '{EXTRA_KEY}' metadata ({first_line(exc)})") from None
+    check_meta(meta, info_path)
+    for c in columns:
+        check_feature(c.key, c.shape, c.dtype, info_path)
+        if c.kind not in COLUMN_KINDS or c.key not in meta.features or not 0 <= c.start <= c.stop <= MAX_EPISODE_FRAMES:
+            raise DemoError(info_path, f"malformed '{EXTRA_KEY}' column {c.key!r}")
+    if {c.key for c in columns} != set(meta.features):
+        raise DemoError(info_path, f"'{EXTRA_KEY}' columns do not match its features")
+    return columns, meta

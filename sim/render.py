@@ -1,6 +1,6 @@
 """Camera images for observations: one offscreen renderer per image size, closed with the env.
 
-Cameras are given as ``(name, width, height)`` (pixels; images are uint8 [height, width, 3]); the scene defines ``front``, ``side``, ``top`` (fixed,
+Cameras are given as ``(name, width, height)`` or ``"NAME@WIDTHxHEIGHT"`` (pixels; images are uint8 [height, width, 3]); the scene defines ``front``, ``side``, ``top`` (fixed,
 looking at the workspace) and ``wrist`` (on the EE). Headless rendering needs ``MUJOCO_GL=egl``
 set before mujoco is imported (``demo.sim`` sets it when unset). Shadows and MSAA are off in the
 scene (``shadowsize = 0``, ``offsamples = 0``): about 29 ms per 128x128 frame under llvmpipe.
@@ -9,6 +9,7 @@ scene (``shadowsize = 0``, ``offsamples = 0``): about 29 ms per 128x128 frame un
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,10 +22,20 @@ from demo.sim.scene import CAMERA_NAMES
 DEFAULT_SIZE = 128
 
 
+def parse_camera(spec: str, where: object = "cameras") -> tuple[str, int, int]:
+    """``"NAME@WIDTHxHEIGHT"`` (e.g. ``front@128x128``) -> (name, width, height)."""
+    match = re.fullmatch(r"([A-Za-z0-9_\-]+)@(\d+)x(\d+)", spec)
+    if not match:
+        raise DemoError(where, f"{spec!r} is not NAME@WIDTHxHEIGHT (e.g. front@128x128)")
+    return match.group(1), int(match.group(2)), int(match.group(3))
+
+
 def parse_cameras(cameras: Sequence[Any]) -> "CameraSet":
     specs: list[tuple[str, int, int]] = []
     for c in cameras:
-        if isinstance(c, str):
+        if isinstance(c, str) and "@" in c:
+            name, w, h = parse_camera(c)
+        elif isinstance(c, str):
             name, h, w = c, DEFAULT_SIZE, DEFAULT_SIZE
         else:
             try:

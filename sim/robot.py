@@ -47,7 +47,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from demo.errors import DemoError
+from demo.errors import DemoError, one_line
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 BUILTIN_CONFIG = ASSETS / "panda.toml"
@@ -90,14 +90,23 @@ class RobotConfig:
 def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
     try:
         spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
-    except Exception as exc:  # mujoco raises ValueError with the parser's message
-        raise DemoError(robot.config_path or robot.mjcf_path, f"cannot load MJCF {robot.mjcf_path}: {exc}") from None
+    except Exception as exc:  # mujoco raises ValueError with the parser's (multi-line) message
+        raise DemoError(robot.mjcf_path, f"MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
     if robot.ee_site_body:
         body = spec.body(robot.ee_site_body)
         if body is None:
             raise DemoError(robot.config_path, f"ee_site_body '{robot.ee_site_body}' is not a body in {robot.mjcf_path}")
         body.add_site(name=robot.ee_site, pos=list(robot.ee_site_pos), quat=list(robot.ee_site_quat), size=[0.006, 0, 0])
     return spec
+
+
+def mujoco_message(exc: BaseException) -> str:
+    """MuJoCo's parser/compiler message on one line, without its ``Error:`` prefixes."""
+    return one_line(str(exc).replace("Error: ", "")) or type(exc).__name__
+
+
+def _named_by(robot: RobotConfig) -> str:
+    return f" (named by {robot.config_path})" if robot.config_path and robot.config_path != robot.mjcf_path else ""
 
 
 def _floats(where: Path, key: str, value: Any, n: int | None = None) -> tuple[float, ...]:
@@ -202,7 +211,7 @@ def _validated(robot: RobotConfig) -> RobotConfig:
     except DemoError:
         raise
     except Exception as exc:
-        raise DemoError(where, f"MJCF {robot.mjcf_path} does not compile: {exc}") from None
+        raise DemoError(robot.mjcf_path, f"MJCF does not compile: {mujoco_message(exc)}{_named_by(robot)}") from None
 
     def need(kind: mujoco.mjtObj, name: str, what: str) -> int:
         i = mujoco.mj_name2id(model, kind, name)

@@ -57,6 +57,35 @@ class Episode:
     failure: str | None = None  # the task's failure after the last step (e.g. "collision")
 
 
+HOLD_SUCCESS_S = 0.5  # s: how long success must hold before an episode ends (module docstring)
+
+
+class SuccessHold:
+    """The success half of the ending rule (module docstring), fed one step at a time: after each
+    control step, :meth:`update` with whether success holds; it answers True once success has held
+    ``hold_success_s`` (s) at ``fps`` (Hz). The rollout loop and :mod:`demo.gym` share it, so an
+    episode ends at the same step whoever runs it."""
+
+    def __init__(self, hold_success_s: float | None, fps: float):
+        self.hold_steps = None if hold_success_s is None else int(round(hold_success_s * fps))
+        self.reset()
+
+    def reset(self) -> None:
+        self.steps = 0
+        self.first_success: int | None = None  # steps run when success first held (1-based)
+        self._streak_start: int | None = None
+
+    def update(self, success: bool) -> bool:
+        """Count one control step; True when the episode ends here by success."""
+        self.steps += 1
+        if not success:
+            self._streak_start = None
+            return False
+        self.first_success = self.steps if self.first_success is None else self.first_success
+        self._streak_start = self.steps if self._streak_start is None else self._streak_start
+        return self.hold_steps is not None and self.steps - self._streak_start >= self.hold_steps
+
+
 def recorded_features(env: Env) -> dict[str, FeatureSpec]:
     """Every per-frame key a recorded episode has, besides ``action``."""
     action = env.action_spec
@@ -77,7 +106,7 @@ def rollout(
     actor: Actor,
     *,
     max_steps: int | None = None,
-    hold_success_s: float | None = 0.5,
+    hold_success_s: float | None = HOLD_SUCCESS_S,
     record: bool = True,
     reset: bool = True,
 ) -> Episode:
@@ -86,12 +115,9 @@ def rollout(
     if reset:
         env.reset(seed)
     horizon = max_steps or env.horizon
-    hold_steps = None if hold_success_s is None else int(round(hold_success_s * env.fps))
+    hold = SuccessHold(hold_success_s, env.fps)
     frames: dict[str, list[np.ndarray]] = {}
     unknown_target = np.zeros(7, dtype=np.float32)
-    first_success: int | None = None
-    streak_start: int | None = None
-    steps = 0
     frame = env.frame()
     for t in range(horizon):
         command = actor(env, frame, t)
@@ -103,18 +129,12 @@ def rollout(
             for key, value in frame.items():
                 frames.setdefault(key, []).append(np.asarray(value))
         obs, _, success, _, _ = env.step(command.executed)
-        steps = t + 1
         frame = env.frame(obs)
-        if success:
-            first_success = steps if first_success is None else first_success
-            streak_start = steps if streak_start is None else streak_start
-            if hold_steps is not None and steps - streak_start >= hold_steps:
-                break
-        else:
-            streak_start = None
+        if hold.update(success):
+            break
     data = {k: np.stack(v) for k, v in frames.items()} if record else {}
     return Episode(
-        data=data, success=bool(env.success()), length=steps, first_success_step=first_success,
+        data=data, success=bool(env.success()), length=hold.steps, first_success_step=hold.first_success,
         failure=env.task.failure(env),
     )
 
@@ -125,7 +145,7 @@ def run_expert(
     rng: np.random.Generator | None = None,
     *,
     max_steps: int | None = None,
-    hold_success_s: float | None = 0.5,
+    hold_success_s: float | None = HOLD_SUCCESS_S,
     perturb: Callable[[Env, int], None] | None = None,
     record: bool = False,
     **style: Any,

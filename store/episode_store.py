@@ -21,16 +21,32 @@ therefore leaves every finished episode readable. ``robot/`` is written once, at
 the first episode table: staged in ``.robot.tmp/`` and renamed into place, so a store's robot folder
 is either complete or absent (a reader then names the missing file), never half-copied.
 
-One process writes at a time (an advisory ``flock`` on ``.lock``); parallel collectors send
-finished episodes to a single writer (see demo.collect).
+One process writes a store's path at a time, and it takes the path's writer lock (an advisory
+``flock`` on ``.NAME.lock`` beside the store, :mod:`demo.store.writer_lock`) before it creates,
+replaces, removes or appends anything; a second writer, ``--overwrite`` included, is refused with
+one line naming the owner's pid. Parallel collectors send finished episodes to a single writer
+(see demo.collect). Opening for reading takes no lock.
+
+A new store is never built in place: :meth:`EpisodeStore.create` builds it in ``.NAME.tmp-PID``
+beside ``NAME`` and swaps it in by rename (:mod:`demo.store.swap`: an atomic exchange where an old
+store is replaced, which is deleted only after), so at every instant ``NAME`` holds the old store
+or the new one, never a half-made or a missing one. It appears with its first committed episode
+(a collection: finished episodes are visible and kept as it goes) or, with ``atomic=True``, only
+when it is closed after everything was written (a copy, a conversion, an import: all or nothing).
+A failure before then (:meth:`EpisodeStore.abandon`, or leaving a ``with`` block by an exception)
+removes the staged store and leaves the old one untouched; the leftovers of a killed writer are
+removed by the next holder of the lock. A writer that fails or is refused writes nothing more
+(it does not even trim spare capacity); only a clean :meth:`EpisodeStore.close` of a writer that
+appended trims.
+
+Opening checks the store against the schema its root ``zarr.json`` declares: every feature's array
+must exist with the declared dtype and per-frame shape, and hold at least the committed frames.
 """
 
 from __future__ import annotations
 
 import asyncio
-import fcntl
 import os
-import shutil
 import time
 import zlib
 from collections.abc import Iterator, Sequence
@@ -43,13 +59,13 @@ import zarr
 from zarr.core.sync import sync
 
 from demo.errors import DemoError
-from demo.store import episode_table
+from demo.store import episode_table, swap
 from demo.store.chunk_writer import RowWriter
 from demo.store.robot_files import ROBOT_DIR, copy_robot_files
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
+from demo.store.writer_lock import WriterLock
 
 TABLE_FILE = "episodes.parquet"
-LOCK_FILE = ".lock"
 IMAGE_PREFIX = "obs.image_"  # camera images: the only compressed features
 CHUNK_BYTES = 64 * 1024  # small enough that an append re-compresses little, big enough for fast reads
 EpisodeSelection = None | str | Sequence[int] | np.ndarray
@@ -63,13 +79,18 @@ def _chunk_rows(frame_shape: tuple[int, ...], dtype: np.dtype) -> int:
 class EpisodeStore:
     """A directory of episodes. Open with :meth:`create` or :meth:`open`; use as a context manager."""
 
-    def __init__(self, path: Path, root: zarr.Group, meta: StoreMeta, table: pa.Table, writable: bool):
-        self.path = path
+    def __init__(self, path: Path, root: zarr.Group, meta: StoreMeta, table: pa.Table, writable: bool,
+                 lock: WriterLock | None = None, staged: Path | None = None, atomic: bool = False):
+        self.path = path  # the store's name; its files are in self._dir (a staging folder until published)
+        self._dir = staged or path
         self._root = root
         self.meta = meta
         self._table = table
         self.writable = writable
-        self._lock_fd: int | None = None
+        self._lock = lock
+        self._staged = staged is not None
+        self._atomic = atomic
+        self._wrote = False  # appended anything: only then does close() trim spare capacity
         self._arrays: dict[str, zarr.Array] = {}
         self._row_writers: dict[str, RowWriter | None] = {}
 
@@ -82,36 +103,31 @@ class EpisodeStore:
         *,
         overwrite: bool = False,
         robot_from: str | Path | None = None,
+        atomic: bool = False,
     ) -> "EpisodeStore":
         """Create an empty store at ``path`` (refuses to replace an existing one unless ``overwrite``).
+
+        Takes ``path``'s writer lock first (refused with one line while another process holds it),
+        then builds the store beside ``path`` (see the module docstring). It replaces what is at
+        ``path`` when its first episode is committed, or, with ``atomic``, when it is closed; until
+        then ``path`` is untouched, and :meth:`abandon` removes the staged store.
 
         The robot files ``meta.robot`` lists are copied into ``path/robot/`` from ``robot_from`` (a
         store or run directory holding them in its ``robot/``), else from the record's source folder.
         """
         path = Path(path)
-        if path.exists() and any(path.iterdir()):
-            if not overwrite:
-                raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
-            if not (path / "zarr.json").exists() and not (path / TABLE_FILE).exists():
-                raise DemoError(path, "exists and is not a demo store; refusing to overwrite it")
-            shutil.rmtree(path)
-        path.mkdir(parents=True, exist_ok=True)
-        root = zarr.open_group(str(path), mode="w", zarr_format=3)
-        root.attrs["demo"] = meta.to_json()
-        data = root.create_group("data")
-        for key, spec in meta.features.items():
-            rows = _chunk_rows(spec.shape, spec.np_dtype)
-            # Low-dimensional data barely compresses and is appended in place (see chunk_writer).
-            compressors = "auto" if key.startswith(IMAGE_PREFIX) else None
-            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype,
-                              compressors=compressors)
-        root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64",
-                                               compressors=None)
-        copy_robot_files(meta.robot, robot_from, path)
-        episode_table.write_atomic(episode_table.empty_table(), path / TABLE_FILE)
-        store = cls(path, root, meta, episode_table.empty_table(), writable=True)
-        store._acquire_lock()
-        return store
+        lock = WriterLock.acquire(path)
+        staged = swap.staging_path(path)
+        try:
+            swap.recover(path)
+            _check_replaceable(path, overwrite)
+            root = _build(staged, meta, robot_from, path)
+        except BaseException:
+            _remove_quietly(staged)
+            lock.release()
+            raise
+        return cls(path, root, meta, episode_table.empty_table(), writable=True, lock=lock, staged=staged,
+                   atomic=atomic)
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> "EpisodeStore":
@@ -119,8 +135,26 @@ class EpisodeStore:
         if mode not in ("r", "a"):
             raise ValueError(f"mode must be 'r' or 'a', not {mode!r}")
         path = Path(path)
+        if mode == "a" and not path.parent.is_dir():
+            raise DemoError(path, "no such store")  # and no folder to create its lock file in
+        lock = WriterLock.acquire(path) if mode == "a" else None
+        try:
+            if lock is not None:
+                swap.recover(path)
+            store = cls._read_existing(path, mode, lock)
+        except BaseException:
+            if lock is not None:
+                lock.release()
+            raise
+        return store
+
+    @classmethod
+    def _read_existing(cls, path: Path, mode: str, lock: WriterLock | None) -> "EpisodeStore":
         if not path.exists():
-            raise DemoError(path, "no such store")
+            aside = swap.interrupted(path)
+            raise DemoError(path, "no such store" + (
+                f" (a replacement killed halfway left the previous one at {aside.name}; "
+                "the next write to this path restores it)" if aside else ""))
         if not path.is_dir() or not (path / "zarr.json").is_file():
             raise DemoError(path, "not a demo episode store (no zarr.json in a directory)")
         try:
@@ -140,41 +174,60 @@ class EpisodeStore:
         except (KeyError, TypeError, ValueError) as exc:
             raise DemoError(path / "zarr.json", f"malformed store metadata ({_first_line(exc)})") from None
         table = episode_table.read(path / TABLE_FILE)
-        store = cls(path, root, meta, table, writable=(mode == "a"))
-        if mode == "a":
-            store._acquire_lock()
+        store = cls(path, root, meta, table, writable=(mode == "a"), lock=lock)
         store._check_consistency()
         return store
 
-    def _acquire_lock(self) -> None:
-        fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise DemoError(self.path, "is being written by another process") from None
-        self._lock_fd = fd
-
     def close(self) -> None:
-        if self._lock_fd is not None:
-            self._trim_to_committed()
+        """Finish writing: trim spare capacity (if this writer appended), publish a staged store, unlock."""
+        if self._lock is None:
+            return
+        try:
+            if self._wrote:
+                self._trim_to_committed()
+            if self._staged:
+                self._publish()
+        except BaseException:
+            self.abandon()
+            raise
+        self._release_lock()
+
+    def abandon(self) -> None:
+        """Stop writing after a failure, writing nothing more: a store not yet published is removed
+        (``path`` keeps what it held before); a published one keeps its committed episodes."""
+        if self._lock is None:
+            return
+        try:
+            if self._staged:
+                _remove_quietly(self._dir)
+        finally:
             self._release_lock()
 
+    def _publish(self) -> None:
+        """Swap the staged store in at ``path`` (replacing the old one there, then deleting it)."""
+        swap.publish(self._dir, self.path)
+        self._dir, self._staged = self.path, False
+        self._root = zarr.open_group(str(self.path), mode="r+", zarr_format=3)
+        self._arrays, self._row_writers = {}, {}
+
     def _release_lock(self) -> None:
-        if self._lock_fd is not None:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
-            os.close(self._lock_fd)
-            self._lock_fd = None
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def __enter__(self) -> "EpisodeStore":
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abandon()
 
     def __del__(self) -> None:
         # No zarr I/O here: during interpreter shutdown zarr cannot start its event loop. A store
-        # that was never closed keeps spare capacity past the committed frames, which is harmless.
+        # that was never closed keeps spare capacity past the committed frames, which is harmless;
+        # one never published stays staged, and the next writer of its path removes it.
         try:
             self._release_lock()
         except Exception:
@@ -184,30 +237,24 @@ class EpisodeStore:
     @property
     def robot_dir(self) -> Path:
         """Where the store keeps its robot's files (absent for the built-in arm)."""
-        return self.path / ROBOT_DIR
+        return self._dir / ROBOT_DIR
 
     def array(self, key: str) -> zarr.Array:
         if key not in self.meta.features:
             raise DemoError(self.path, f"has no feature {key!r} (features: {', '.join(self.meta.features)})")
         if key not in self._arrays:
-            try:
-                self._arrays[key] = self._root["data"][key]
-            except KeyError:
-                raise DemoError(self.path / "data" / key, "array is missing") from None
+            self._arrays[key] = _member(self._root, "data", key, self.path)
         return self._arrays[key]
 
     def _ends_array(self) -> zarr.Array:
         if "meta/episode_ends" not in self._arrays:  # a group lookup reads metadata from disk: keep the array
-            try:
-                self._arrays["meta/episode_ends"] = self._root["meta"]["episode_ends"]
-            except KeyError:
-                raise DemoError(self.path / "meta" / "episode_ends", "array is missing") from None
+            self._arrays["meta/episode_ends"] = _member(self._root, "meta", "episode_ends", self.path)
         return self._arrays["meta/episode_ends"]
 
     def _write_rows(self, key: str, array: zarr.Array, start: int, rows: np.ndarray) -> Any:
         """Write ``rows`` at ``start`` now (RowWriter), or return zarr's coroutine that will."""
         if key not in self._row_writers:
-            directory = self.path / ("meta" if key == "episode_ends" else "data") / key
+            directory = self._dir / ("meta" if key == "episode_ends" else "data") / key
             self._row_writers[key] = RowWriter.for_array(array, directory)
         writer = self._row_writers[key]
         if writer is None:
@@ -215,7 +262,27 @@ class EpisodeStore:
         writer.write(start, rows)
         return None
 
+    def _check_schema(self) -> None:
+        """Every array has the dtype and per-frame shape the root metadata declares for it."""
+        for key, spec in self.meta.features.items():
+            try:
+                expected = spec.np_dtype
+            except TypeError:
+                raise DemoError(self.path / "zarr.json", f"feature {key!r} declares an unknown dtype {spec.dtype!r}") from None
+            arr = self.array(key)
+            if np.dtype(arr.dtype) != expected or tuple(arr.shape[1:]) != spec.shape:
+                raise DemoError(
+                    self.path / "data" / key / "zarr.json",
+                    f"array holds {arr.dtype} frames of shape {tuple(arr.shape[1:])} but the store's schema declares "
+                    f"{spec.dtype} {spec.shape}",
+                )
+        ends = self._ends_array()
+        if np.dtype(ends.dtype) != np.int64 or ends.ndim != 1:
+            raise DemoError(self.path / "meta" / "episode_ends" / "zarr.json",
+                            f"array must be 1-D int64, not {ends.ndim}-D {ends.dtype}")
+
     def _check_consistency(self) -> None:
+        self._check_schema()
         lengths = self._table.column("length").to_numpy()
         ends = np.cumsum(lengths, dtype=np.int64)
         if not np.array_equal(self._table.column("episode_index").to_numpy(), np.arange(len(lengths))):
@@ -349,7 +416,7 @@ class EpisodeStore:
         if len(values) != self.num_episodes:
             raise DemoError(self.path, f"column {name!r} has {len(values)} values for {self.num_episodes} episodes")
         table = episode_table.set_column(self._table, name, values)
-        episode_table.write_atomic(table, self.path / TABLE_FILE)
+        episode_table.write_atomic(table, self._dir / TABLE_FILE)
         self._table = table
 
     def update_meta(self, **changes: Any) -> None:
@@ -366,7 +433,8 @@ class EpisodeStore:
         if not self.writable:
             raise DemoError(self.path, "is open read-only")
 
-    def _validate(self, data: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], int]:
+    def _validate(self, data: dict[str, np.ndarray], where: object) -> tuple[dict[str, np.ndarray], int]:
+        """The episode's arrays in the store's dtypes, and its length; DemoError naming ``where`` if unfit."""
         expected = set(self.meta.features)
         given = set(data)
         if given != expected:
@@ -374,24 +442,24 @@ class EpisodeStore:
             parts = ([f"missing {', '.join(missing)}"] if missing else []) + (
                 [f"unknown {', '.join(unknown)}"] if unknown else []
             )
-            raise DemoError(self.path, f"episode keys do not match the store's features: {'; '.join(parts)}")
+            raise DemoError(where, f"episode keys do not match the store's features: {'; '.join(parts)}")
         lengths = {k: len(v) for k, v in data.items()}
         if len(set(lengths.values())) != 1:
-            raise DemoError(self.path, f"episode arrays have mismatched lengths: {lengths}")
+            raise DemoError(where, f"episode arrays have mismatched lengths: {lengths}")
         length = next(iter(lengths.values()))
         if length == 0:
-            raise DemoError(self.path, "episode is empty")
+            raise DemoError(where, "episode is empty")
         out = {}
         for key, spec in self.meta.features.items():
             arr = np.asarray(data[key])
             if arr.shape[1:] != spec.shape:
-                raise DemoError(self.path, f"{key}: frame shape {arr.shape[1:]} does not match {spec.shape}")
+                raise DemoError(where, f"{key}: frame shape {arr.shape[1:]} does not match {spec.shape}")
             if arr.dtype.kind == "f" and not np.isfinite(arr).all():
                 bad = int(np.flatnonzero(~np.isfinite(arr.reshape(length, -1)).all(axis=1))[0])
-                raise DemoError(self.path, f"{key}: non-finite value (NaN or inf) at frame {bad}")
+                raise DemoError(where, f"{key}: non-finite value (NaN or inf) at frame {bad}")
             if arr.dtype != spec.np_dtype:
                 if not np.can_cast(arr.dtype, spec.np_dtype, casting="same_kind"):
-                    raise DemoError(self.path, f"{key}: dtype {arr.dtype} cannot be stored as {spec.dtype}")
+                    raise DemoError(where, f"{key}: dtype {arr.dtype} cannot be stored as {spec.dtype}")
                 arr = arr.astype(spec.np_dtype)
             out[key] = arr
         return out, length
@@ -413,6 +481,7 @@ class EpisodeStore:
         ends = self._ends_array()
         if ends.shape[0] < episodes:
             resizes.append((ends, (max(episodes, ends.shape[0] * 3 // 2, 64),)))
+        self._wrote = True
         _run_concurrently([a.async_array.resize(shape) for a, shape in resizes])
 
     def append_episode(self, data: dict[str, np.ndarray], **info: Any) -> int:
@@ -424,29 +493,51 @@ class EpisodeStore:
         """
         return self.append_episodes([(data, info)])[0]
 
-    def append_episodes(self, episodes: Sequence[tuple[dict[str, np.ndarray], dict[str, Any]]]) -> list[int]:
-        """Append several episodes with one commit (all or none of them become visible)."""
+    def append_episodes(
+        self,
+        episodes: Sequence[tuple[dict[str, np.ndarray], dict[str, Any]]],
+        origin: Sequence[object] | None = None,
+    ) -> list[int]:
+        """Append several episodes with one commit (all or none of them become visible).
+
+        ``origin``: what each episode was read from, named in errors about its data (a copy or a
+        conversion names its input's episode, not the store it writes); default: this store.
+        """
         self._require_writable()
         if not episodes:
             return []
-        checked = [self._validate(data) for data, _ in episodes]
+        where = list(origin) if origin is not None else [self.path] * len(episodes)
+        checked = [self._validate(data, at) for (data, _), at in zip(episodes, where)]
         infos = [info for _, info in episodes]
         total = self.num_frames
         lengths = [n for _, n in checked]
         new_total = total + sum(lengths)
         n_before = self.num_episodes
-        self._ensure_capacity(new_total, n_before + len(checked))
-        writes = []  # to zarr, for arrays a RowWriter cannot write: one event-loop round trip for all
-        for key in self.meta.features:
-            block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
-            writes.append(self._write_rows(key, self.array(key), total, block))
-        new_ends = total + np.cumsum(lengths, dtype=np.int64)
-        writes.append(self._write_rows("episode_ends", self._ends_array(), n_before, new_ends))
-        _run_concurrently([w for w in writes if w is not None])
+        table, indices = self._table_with(checked, infos, total)
+        try:
+            self._ensure_capacity(new_total, n_before + len(checked))
+            writes = []  # to zarr, for arrays a RowWriter cannot write: one event-loop round trip for all
+            for key in self.meta.features:
+                block = checked[0][0][key] if len(checked) == 1 else np.concatenate([d[key] for d, _ in checked])
+                writes.append(self._write_rows(key, self.array(key), total, block))
+            new_ends = total + np.cumsum(lengths, dtype=np.int64)
+            writes.append(self._write_rows("episode_ends", self._ends_array(), n_before, new_ends))
+            _run_concurrently([w for w in writes if w is not None])
+            episode_table.write_atomic(table, self._dir / TABLE_FILE)  # the commit
+        except OSError as exc:  # disk full, quota, permissions: nothing of this append is committed
+            raise DemoError(self.path, f"cannot write ({exc.strerror or _first_line(exc)}); these {len(checked)} "
+                                       f"episode(s) were not committed, the {n_before} before them are kept") from None
+        self._table = table
+        if self._staged and not self._atomic:
+            self._publish()  # the first episode is committed: the store replaces what was at its path
+        return indices
+
+    def _table_with(self, checked: list[tuple[dict[str, np.ndarray], int]], infos: list[dict[str, Any]],
+                    start: int) -> tuple[pa.Table, list[int]]:
+        """The episode table with rows for ``checked`` episodes whose frames begin at ``start``, and their indices."""
         table = self._table
         indices = []
-        start = total
-        for (data, _), info, length in zip(checked, infos, lengths):
+        for (data, length), info in zip(checked, infos):
             index = table.num_rows
             row = {
                 "episode_index": index,
@@ -464,9 +555,7 @@ class EpisodeStore:
             table = episode_table.append_row(table, episode_table.make_row(row))
             indices.append(index)
             start += length
-        episode_table.write_atomic(table, self.path / TABLE_FILE)  # the commit
-        self._table = table
-        return indices
+        return table, indices
 
     def _checksum(self, data: dict[str, np.ndarray]) -> int:
         crc = 0
@@ -501,6 +590,8 @@ class EpisodeStore:
         """Write the selected episodes (optionally trimmed to ``frame_ranges[i] = (a, b)``) to a new store.
 
         The source is never modified. Per-episode columns, masks included, travel with their rows.
+        The copy appears at ``path`` when the returned store is closed (all or nothing: a failure,
+        or leaving a ``with`` block by an exception, leaves ``path`` as it was).
         """
         path = Path(path)
         if path.resolve() == self.path.resolve():
@@ -510,7 +601,16 @@ class EpisodeStore:
         record = {"op": "copy", "from": str(self.path), "episodes": int(len(chosen)), "time": _now()}
         record.update(provenance or {})
         new_meta.provenance = [*new_meta.provenance, record]
-        out = EpisodeStore.create(path, new_meta, overwrite=overwrite, robot_from=self.path)
+        out = EpisodeStore.create(path, new_meta, overwrite=overwrite, robot_from=self.path, atomic=True)
+        try:
+            self._copy_episodes(out, chosen, frame_ranges)
+        except BaseException:
+            out.abandon()
+            raise
+        return out
+
+    def _copy_episodes(self, out: "EpisodeStore", chosen: np.ndarray,
+                       frame_ranges: dict[int, tuple[int, int]] | None) -> None:
         skip = {"episode_index", "start", "length", "duration_s", "crc32"}
         starts, lengths = self.column("start"), self.episode_lengths
         for block in _blocks(chosen, starts, lengths, max_frames=200_000):
@@ -529,8 +629,7 @@ class EpisodeStore:
                     info["trimmed_from"] = f"{int(index)}:{frame_ranges[int(index)][0]}:{frame_ranges[int(index)][1]}"
                 info["source_episode"] = int(index)
                 batch.append(({k: v[a:b] for k, v in span.items()}, info))
-            out.append_episodes(batch)
-        return out
+            out.append_episodes(batch, origin=[f"{self.path} episode {int(i)}" for i in block])
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
@@ -560,6 +659,65 @@ class EpisodeStore:
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "provenance": self.meta.provenance,
         }
+
+
+def _check_replaceable(path: Path, overwrite: bool) -> None:
+    """Refuse to replace ``path`` unless it is free (absent or an empty folder), or a store and ``overwrite``."""
+    if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
+        return
+    if not os.path.lexists(path):
+        return
+    if not overwrite:
+        raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
+    if path.is_symlink() or not path.is_dir() or not ((path / "zarr.json").exists() or (path / TABLE_FILE).exists()):
+        raise DemoError(path, "exists and is not a demo store; refusing to overwrite it")
+
+
+def _build(folder: Path, meta: StoreMeta, robot_from: str | Path | None, where: Path) -> zarr.Group:
+    """An empty store with ``meta``'s arrays, robot files and episode table, written in ``folder``
+    (the staging folder of the store at ``where``, which errors name)."""
+    try:
+        return _build_in(folder, meta, robot_from, where)
+    except OSError as exc:  # disk full, permissions, read-only filesystem
+        raise DemoError(where, f"cannot be created ({exc.strerror or _first_line(exc)})") from None
+
+
+def _build_in(folder: Path, meta: StoreMeta, robot_from: str | Path | None, where: Path) -> zarr.Group:
+    folder.mkdir(parents=True)
+    root = zarr.open_group(str(folder), mode="w", zarr_format=3)
+    root.attrs["demo"] = meta.to_json()
+    data = root.create_group("data")
+    for key, spec in meta.features.items():
+        rows = _chunk_rows(spec.shape, spec.np_dtype)
+        # Low-dimensional data barely compresses and is appended in place (see chunk_writer).
+        compressors = "auto" if key.startswith(IMAGE_PREFIX) else None
+        try:
+            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype,
+                              compressors=compressors)
+        except ValueError as exc:  # a name zarr cannot store as a path
+            raise DemoError(where, f"feature name {key!r} cannot be stored ({_first_line(exc)})") from None
+    root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64",
+                                           compressors=None)
+    copy_robot_files(meta.robot, robot_from, folder)
+    episode_table.write_atomic(episode_table.empty_table(), folder / TABLE_FILE)
+    return root
+
+
+def _member(root: zarr.Group, group: str, key: str, where: Path) -> zarr.Array:
+    """``root[group][key]``, or DemoError naming the array's metadata file."""
+    try:
+        return root[group][key]
+    except KeyError:
+        raise DemoError(where / group / key, "array is missing") from None
+    except Exception as exc:  # zarr raises several types for unreadable metadata
+        raise DemoError(where / group / key / "zarr.json", f"unreadable array metadata ({_first_line(exc)})") from None
+
+
+def _remove_quietly(path: Path) -> None:
+    try:
+        swap.remove(path)
+    except OSError:
+        pass  # the next writer of this path removes leftovers
 
 
 def _blocks(chosen: np.ndarray, starts: np.ndarray, lengths: np.ndarray, max_frames: int) -> Iterator[np.ndarray]:

@@ -94,9 +94,13 @@ def write_atomic(table: pa.Table, path: Path) -> None:
     surviving power loss would need every chunk synced too.
     """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    # Rewritten at every commit: plain encoding writes it in ~half the time, and it stays small.
-    pq.write_table(table, tmp, compression="none", use_dictionary=False, write_statistics=False)
-    os.replace(tmp, path)
+    try:
+        # Rewritten at every commit: plain encoding writes it in ~half the time, and it stays small.
+        pq.write_table(table, tmp, compression="none", use_dictionary=False, write_statistics=False)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a full disk gets its space back; the old table stays
+        raise
 
 
 def read(path: Path) -> pa.Table:
@@ -109,4 +113,14 @@ def read(path: Path) -> pa.Table:
     missing = [c for c in FIXED_COLUMNS if c not in table.column_names]
     if missing:
         raise DemoError(path, f"episode table lacks column(s) {', '.join(missing)}")
+    wrong = [f"{c} is {table.schema.field(c).type}" for c, t in FIXED_COLUMNS.items() if table.schema.field(c).type != t]
+    if wrong:
+        raise DemoError(path, f"episode table column types differ from the format's: {', '.join(wrong)}")
+    empty = [c for c in ("episode_index", "start", "length", "success", "crc32") if table.column(c).null_count]
+    if empty:
+        raise DemoError(path, f"episode table has missing values in {', '.join(empty)}")
+    lengths, starts = table.column("length").to_numpy(), table.column("start").to_numpy()
+    if len(lengths) and (lengths.min() < 0 or not np.array_equal(starts, np.cumsum(lengths) - lengths)):
+        raise DemoError(path, "episode table is inconsistent: a negative length, or a start that is not the end of "
+                              "the episode before")
     return table

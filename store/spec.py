@@ -11,6 +11,7 @@ Data keys follow one naming scheme so every stage knows what a key is for:
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -18,6 +19,25 @@ import numpy as np
 
 FORMAT_NAME = "demo-episodes"
 SCHEMA_VERSION = 1
+MAX_FPS = 10_000.0  # Hz; a recorded rate beyond it (or NaN, or <= 0) is corrupted metadata
+
+
+def _object(value: Any, what: str) -> dict[str, Any]:
+    """A JSON object read from metadata, else TypeError (readers turn it into one line naming the file)."""
+    if not isinstance(value, dict):
+        raise TypeError(f"{what} must be a JSON object, got {type(value).__name__}")
+    return value
+
+
+def check_fps(value: Any) -> float:
+    """A frame rate read from metadata: a finite number in (0, MAX_FPS] Hz, else ValueError."""
+    try:
+        fps = float(value)
+    except OverflowError:  # an integer too large for a float
+        fps = math.inf
+    if not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise ValueError(f"fps {value!r} is not a frame rate in (0, {MAX_FPS:g}] Hz")
+    return fps
 
 
 @dataclass(frozen=True)
@@ -38,7 +58,7 @@ class FeatureSpec:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "FeatureSpec":
-        names = d.get("names")
+        names = _object(d, "feature").get("names")
         return cls(
             shape=tuple(int(s) for s in d["shape"]),
             dtype=str(d.get("dtype", "float32")),
@@ -99,7 +119,7 @@ class ActionSpec:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "ActionSpec":
         return cls(
-            name=str(d["name"]),
+            name=str(_object(d, "action")["name"]),
             names=tuple(d["names"]),
             units=tuple(d["units"]),
             frame=str(d.get("frame", "base")),
@@ -150,11 +170,11 @@ class StoreMeta:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "StoreMeta":
         return cls(
-            fps=float(d["fps"]),
-            features={k: FeatureSpec.from_json(v) for k, v in d["features"].items()},
+            fps=check_fps(d["fps"]),
+            features={k: FeatureSpec.from_json(v) for k, v in _object(d["features"], "features").items()},
             action=ActionSpec.from_json(d["action"]),
-            robot=d.get("robot"),
-            task=d.get("task"),
+            robot=None if d.get("robot") is None else _object(d["robot"], "robot"),
+            task=None if d.get("task") is None else _object(d["task"], "task"),
             provenance=list(d.get("provenance") or []),
             extra=dict(d.get("extra") or {}),
             format=str(d.get("format")),

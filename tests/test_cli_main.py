@@ -32,7 +32,7 @@ def test_version(capsys: pytest.CaptureFixture) -> None:
 
 def test_usage_error_exits_2() -> None:
     out = run_cli("info")
-    assert out.returncode == 2 and "Missing argument" in out.stderr
+    assert out.returncode == 2 and out.stderr == "error: STORE: missing argument (see demo info --help)\n"
 
 
 @app.command("explode", hidden=True)

@@ -75,7 +75,9 @@ def test_masks_columns_and_copy(tmp_path: Path) -> None:
         store.set_column("score.jerk", np.arange(6, dtype=float))
         with pytest.raises(DemoError, match="6 episodes"):
             store.set_mask("bad", [True])
-        store.copy_to(tmp_path / "c.zarr", "train", frame_ranges={3: (1, 4)}, provenance={"op": "test"})
+        copy = store.copy_to(tmp_path / "c.zarr", "train", frame_ranges={3: (1, 4)}, provenance={"op": "test"})
+        assert not (tmp_path / "c.zarr").exists()  # a copy appears whole, when it is closed
+        copy.close()
     copy = EpisodeStore.open(tmp_path / "c.zarr")
     assert copy.num_episodes == 4
     assert copy.column("source_episode").tolist() == [0, 1, 3, 5]
@@ -87,10 +89,11 @@ def test_masks_columns_and_copy(tmp_path: Path) -> None:
 
 
 def test_one_writer_at_a_time(tmp_path: Path) -> None:
-    with EpisodeStore.create(tmp_path / "s.zarr", make_meta()):
+    with EpisodeStore.create(tmp_path / "s.zarr", make_meta()) as store:
         with pytest.raises(DemoError, match="another process"):
             EpisodeStore.open(tmp_path / "s.zarr", "a")
-        EpisodeStore.open(tmp_path / "s.zarr", "r")  # readers are never blocked
+        store.append_episode(random_episode(0))
+        assert EpisodeStore.open(tmp_path / "s.zarr", "r").num_episodes == 1  # readers are never blocked
 
 
 def test_create_refuses_to_clobber(tmp_path: Path) -> None:

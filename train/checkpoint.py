@@ -22,9 +22,12 @@ temporary name and renamed, so an interrupted save never leaves a half-written c
 from __future__ import annotations
 
 import json
+import math
 import pickle
+import re
 import time
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,7 +130,26 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
         raise DemoError(path, f"run format version {run.get('version')!r} is not supported (this demo reads {RUN_VERSION})")
     if "policy" not in run:
         raise DemoError(path, "has no trained policy yet")
+    _check_sections(run, path)
     return run
+
+
+# What a run record's sections must be, for the code that reads them (eval, resume, dagger).
+_SECTIONS: dict[str, tuple[type, ...]] = {"policy": (dict,), "task": (dict,), "robot": (dict, type(None)),
+                                          "data": (dict, type(None)), "train": (dict, type(None))}
+
+
+def _check_sections(run: dict[str, Any], path: Path) -> None:
+    """A run directory is untrusted: each section is of its kind before anything reads into it."""
+    for key, kinds in _SECTIONS.items():
+        if key in run and not isinstance(run[key], kinds):
+            raise DemoError(path, f"'{key}' is a {type(run[key]).__name__}, not a JSON object")
+    task = run.get("task") or {}
+    if not isinstance(task.get("name", ""), str) or not isinstance(task.get("options") or {}, dict):
+        raise DemoError(path, "'task' must name the task (a string) and its options (an object)")
+    seeds = (run.get("data") or {}).get("seeds", [])
+    if not isinstance(seeds, list) or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
+        raise DemoError(path, "'data.seeds' must be a list of integers")
 
 
 def run_robot(record: dict[str, Any] | None, store_path: str | Path, override: str | Path | None = None) -> dict[str, Any] | None:
@@ -177,7 +199,10 @@ def load_bundle(run_dir: str | Path) -> PolicyBundle:
         execution = ExecConfig.from_json(rec.get("execution") or {})
         config = policy_config(rec["algo"], rec.get("config") or {})
         relative = RelativeActions.from_json(rec.get("relative_actions"))
-    except (KeyError, TypeError, ValueError) as exc:
+        _check_record(obs_spec, spec, action, relative, execution)
+        with torch.device("meta"):  # shapes only: a record naming a huge network allocates nothing here
+            shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config).state_dict().items()}
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RuntimeError) as exc:
         raise DemoError(where, f"malformed policy record ({exc})") from None
     path = run_dir / POLICY_FILE
     if not path.is_file():
@@ -186,18 +211,38 @@ def load_bundle(run_dir: str | Path) -> PolicyBundle:
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError) as exc:
         raise DemoError(path, f"not a valid safetensors file, refusing to load it ({str(exc).splitlines()[0][:120]})") from None
-    policy = build_policy(rec["algo"], spec, config)
     weights = {k[len("policy."):]: v for k, v in tensors.items() if k.startswith("policy.")}
+    stored = {k: tuple(v.shape) for k, v in weights.items()}
+    if stored != shapes:
+        differ = sorted(k for k in shapes.keys() | stored.keys() if shapes.get(k) != stored.get(k))
+        raise DemoError(path, f"does not match the policy in {RUN_FILE} (tensor {differ[0]}: "
+                              f"{stored.get(differ[0])} in the file, {shapes.get(differ[0])} in the record)")
+    policy = build_policy(rec["algo"], spec, config)
     try:
         policy.load_state_dict(weights, strict=True)
         obs_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.obs")
         action_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.action")
-    except (RuntimeError, KeyError) as exc:
+    except (RuntimeError, KeyError, ValueError) as exc:  # ValueError: a normaliser range a flipped bit inverted
         raise DemoError(path, f"does not match the policy in {RUN_FILE} ({str(exc).splitlines()[0][:160]})") from None
     if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
         raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
     policy.eval()
     return PolicyBundle(rec["algo"], policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
+
+
+def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: RelativeActions | None,
+                  execution: ExecConfig) -> None:
+    """The parts of a policy record must agree (ValueError otherwise): a run directory is untrusted."""
+    if not all(isinstance(k, str) for k in obs.keys) or len(obs.dims) != len(obs.keys) or min(obs.dims, default=0) < 0:
+        raise ValueError("observation keys and dims do not pair up")
+    if obs.dim != spec.obs_dim or action.dim != spec.action_dim or min(spec.n_obs, spec.horizon) < 1:
+        raise ValueError(f"spec {spec} does not match the observation ({obs.dim}) and action ({action.dim}) sizes")
+    if relative is not None and (relative.obs_key not in obs.keys or len(relative.obs_dims) != len(relative.action_dims)
+                                 or not all(0 <= i < action.dim for i in relative.action_dims)
+                                 or not all(0 <= i < obs.dims[obs.keys.index(relative.obs_key)] for i in relative.obs_dims)):
+        raise ValueError("relative_actions names dims the observation or action does not have")
+    if execution.ensemble is not None and not math.isfinite(execution.ensemble):
+        raise ValueError("execution ensemble is not a finite number")
 
 
 def save_train_state(run_dir: str | Path, state: dict[str, Any]) -> None:
@@ -207,7 +252,8 @@ def save_train_state(run_dir: str | Path, state: dict[str, Any]) -> None:
 
 
 def load_train_state(run_dir: str | Path) -> dict[str, Any]:
-    """Read the resume state with ``torch.load(weights_only=True)``; refuse anything else."""
+    """Read the resume state with ``torch.load(weights_only=True)``; refuse anything else, saying
+    what the file is (empty, truncated, not a torch checkpoint, a pickle of Python objects)."""
     path = Path(run_dir) / STATE_FILE
     if not path.is_file():
         raise DemoError(run_dir, f"has no {STATE_FILE} to resume from")
@@ -215,16 +261,48 @@ def load_train_state(run_dir: str | Path) -> dict[str, Any]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # torch's note on the pickle protocol of foreign files
             state = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        raise DemoError(
-            path, "refusing to load: it holds Python objects other than tensors and plain containers (a pickle can run code)"
-        ) from None
-    except (RuntimeError, EOFError, OSError, ValueError, AttributeError) as exc:
-        first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
-        raise DemoError(path, f"refusing to load: not a plain-tensor checkpoint ({first})") from None
+    except Exception as exc:  # noqa: BLE001 - torch raises many types on a damaged file; each is described
+        raise DemoError(path, _state_problem(path, exc)) from None
     if not isinstance(state, dict) or "step" not in state:
-        raise DemoError(path, "not a demo training state")
+        raise DemoError(path, "not a demo training state (no 'step')")
     return state
+
+
+_ZIP_MAGIC = b"PK\x03\x04"  # torch.save's default format is a zip archive holding data.pkl + tensors
+_PICKLE_HEADS = tuple(bytes([0x80, protocol]) for protocol in range(2, 6))  # PROTO opcode, protocols 2-5
+_REFUSED_GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
+
+
+def _state_problem(path: Path, exc: BaseException) -> str:
+    """What is wrong with a ``train_state.pt`` torch could not load, from what the file holds."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(4)
+    found = _REFUSED_GLOBAL.search(str(exc)) if isinstance(exc, pickle.UnpicklingError) else None
+    if found:
+        return (f"refusing to load: it holds Python objects ({found.group(1)}) other than tensors and plain "
+                "containers (a pickle can run code)")
+    if isinstance(exc, pickle.UnpicklingError) and head.startswith(_PICKLE_HEADS):
+        return "refusing to load: a plain Python pickle, not a torch checkpoint (a pickle can run code)"
+    if size == 0:
+        return "empty file (0 bytes): not a checkpoint"
+    if head.startswith(_ZIP_MAGIC):
+        try:
+            with zipfile.ZipFile(path) as archive:
+                bad = archive.testzip()
+        except (zipfile.BadZipFile, OSError, EOFError, ValueError) as zexc:
+            return f"truncated or corrupted: its zip archive does not read ({_first(zexc)}; {size} bytes)"
+        if bad is not None:
+            return f"corrupted: archive member {bad} fails its checksum"
+        return f"a zip archive that is not a torch checkpoint ({_first(exc)})"
+    if head.startswith(_PICKLE_HEADS):
+        return f"truncated or corrupted legacy torch checkpoint ({_first(exc)})"
+    return f"not a torch checkpoint: neither a zip archive nor a pickle (starts with bytes {head.hex(' ')})"
+
+
+def _first(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:160] if text else type(exc).__name__
 
 
 def now() -> str:

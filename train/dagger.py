@@ -143,13 +143,17 @@ def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
     meta.provenance = [*meta.provenance, {"op": "dagger", "from": str(source.path), "time": ckpt.now()}]
     out = EpisodeStore.create(path, meta, overwrite=True, robot_from=source.path)
     skip = {"episode_index", "start", "length", "duration_s", "crc32"}
-    batch = []
-    for index, data in source.iter_episodes():
-        info = {k: v for k, v in source.episode_info(index).items() if k not in skip}
-        info["dagger_round"] = 0
-        info["labels"] = len(data["action"])
-        batch.append(({**data, LABEL_KEY: np.ones(len(data["action"]), np.uint8)}, info))
-    out.append_episodes(batch)
+    try:
+        batch = []
+        for index, data in source.iter_episodes():
+            info = {k: v for k, v in source.episode_info(index).items() if k not in skip}
+            info["dagger_round"] = 0
+            info["labels"] = len(data["action"])
+            batch.append(({**data, LABEL_KEY: np.ones(len(data["action"]), np.uint8)}, info))
+        out.append_episodes(batch)
+    except BaseException:
+        out.abandon()  # no half-made aggregate (nor its staging folder) stays behind
+        raise
     return out
 
 

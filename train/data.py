@@ -33,6 +33,7 @@ from demo.train.relative import RelativeActions, default_relative
 
 LABEL_KEY = "info.labelled"  # optional per-frame flag: this frame's action is an expert label
 VALIDATION_WINDOWS = 4096  # windows of the fixed validation batch
+MIN_TRAIN_EPISODES = 2  # below this a policy sees one trajectory: refused, not trained silently
 
 _UNIT = MinMaxNormalizer.from_limits(np.full(1, -1.0, np.float32), np.ones(1, np.float32))  # placeholder until fitted
 Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # obs [B, n_obs, D], action [B, H, A], action_pad [B, H]
@@ -82,7 +83,11 @@ class TrainingData:
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
             split: tuple[np.ndarray, np.ndarray] | None = None) -> TrainingData:
-    """Steps 1-3 for a resolved ``config``: split drawn from ``among`` (default: all episodes) or given."""
+    """Steps 1-3 for a resolved ``config``: split drawn from ``among`` (default: all episodes) or given.
+
+    Refuses (DemoError) a training split below the minimum: :data:`MIN_TRAIN_EPISODES` episodes and
+    one window's worth of labelled frames, ``n_obs + chunk - 1``.
+    """
     obs_spec = ObsSpec.from_features(store.meta.features, config.obs_keys or None, str(store.path))
     relative = default_relative(store.meta) if config.relative_actions else None
     train_eps, val_eps = split if split is not None else split_episodes(store, config, among)
@@ -90,8 +95,11 @@ def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None =
     frames = frame_indices(ends, train_eps)
     if labelled is not None:
         frames = frames[labelled[frames]]
-    if len(frames) == 0:
-        raise DemoError(store.path, "has no labelled training frames")
+    window = config.n_obs + config.chunk - 1
+    if len(train_eps) < MIN_TRAIN_EPISODES or len(frames) < window:
+        raise DemoError(store.path, f"too little to train on: {len(train_eps)} training episode(s) with {len(frames)} "
+                                    f"labelled frame(s); the minimum is {MIN_TRAIN_EPISODES} episodes and one window "
+                                    f"of {window} frames (n_obs {config.n_obs} + chunk {config.chunk} - 1)")
     obs_norm = MinMaxNormalizer.fit(obs[frames])
     spec = PolicySpec(obs_spec.dim, store.meta.action.dim, config.n_obs, config.chunk)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,

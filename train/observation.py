@@ -178,7 +178,7 @@ class ObsSpec:
         """Refuse an environment/store whose observations differ from the ones trained on."""
         for key, d, t in zip(self.keys, self.dims, self.transforms):
             if t == DIFFERENCE:
-                pair = _difference(key) or ()
+                pair = _difference(key) or (key,)  # not "a-b": then it names a missing observation
                 missing = [k for k in pair if k not in features]
                 if missing:
                     raise DemoError(where, f"has no observation {missing[0]!r}, which the policy was trained on")

@@ -136,6 +136,7 @@ class TrainingRun:
         if self.resume:
             if not (out / ckpt.STATE_FILE).is_file():
                 raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+            ckpt.load_train_state(out)  # one that cannot be resumed from is refused before anything is written
             return
         if out.exists() and any(out.iterdir()):
             if not self.overwrite:

@@ -1,0 +1,172 @@
+"""One task of :mod:`demo.sim` as a ``gymnasium.Env``: what ``gymnasium.make("demo/Pick-v0", ...)`` builds.
+
+Options (keyword arguments of ``gymnasium.make``):
+
+- ``robot``: a robot config TOML (as ``demo collect --robot``); default the built-in arm.
+- ``cameras``: camera images to observe, ``"NAME@WIDTHxHEIGHT"`` strings or ``(name, width, height)``
+  (``front``, ``side``, ``top``, ``wrist``), e.g. ``["front@64x64", "wrist@64x64"]``, as
+  ``demo collect --camera``; default none (state only).
+- ``obs_keys``: the observation keys, store feature names (``obs.joint_pos``, ``obs.image_front``, ...);
+  default every ``obs.*`` feature of the env (the robot's and the task's state, then the cameras).
+- ``action``: the action representation, ``joint_pos`` (default, what collection records), ``ee7``,
+  ``ee_delta``, ``ee_abs`` or ``joint_vel``, with ``rotation`` / ``delta_frame`` as ``demo convert``
+  takes them (:mod:`demo.convert.representations`); executed as ``demo eval`` executes a policy trained
+  on it (:mod:`demo.gym.actions`).
+- task options, e.g. ``blocks=2`` for stack; ``render_mode="rgb_array"`` with ``render_camera``
+  (default ``front@256x256``, at most 640x480); ``hold_success_s`` (default 0.5 s, below).
+
+Spaces (:mod:`demo.gym.spaces`): the observation ``Dict`` has the keys, shapes and dtypes of the
+features a store collected from the same env records; the action ``Box`` is the representation's.
+
+Seeds: ``reset(seed=s)`` calls the simulator's ``env.reset(s)``, so ``s`` is the *reset seed*, the
+``seed`` column of a store. Episode ``i`` of ``demo collect --seed S`` starts from
+``reset(seed=episode_seed(S, i))`` (:func:`demo.seeds.episode_seed`; on ``avoid``, whose episodes are
+collected in pairs, ``episode_seed(S, i // 2)``). ``reset()`` without a seed draws a 32-bit reset seed
+from the env's ``np_random``; ``info["seed"]`` says which.
+
+Reward and episode end:
+
+- ``reward`` = 1.0 at every step after which the task's success predicate holds, else 0.0 (sparse;
+  the simulator's own reward).
+- ``terminated`` once success has held for ``hold_success_s`` (0.5 s, 10 steps at 20 Hz), the rule
+  the rollout loop of collection and ``demo eval`` ends episodes by
+  (:class:`demo.sim.rollout.SuccessHold`), or as soon as the task has failed for good (avoid's
+  ``collision``).
+- ``truncated`` once the task's horizon (``env.unwrapped.horizon`` control steps) is reached.
+- ``info``: ``success`` (the predicate after this step) and ``failure`` (the task's failure, e.g.
+  ``"collision"``, else None).
+
+The expert: ``env.unwrapped.expert()`` (:class:`demo.gym.expert.GymExpert`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from demo.convert.representations import make_format
+from demo.errors import DemoError
+from demo.gym.actions import ActionCodec
+from demo.gym.expert import GymExpert
+from demo.gym.spaces import action_space, observation_space
+from demo.sim import make_env
+from demo.sim.env import CONTROL_HZ
+from demo.sim.render import parse_cameras
+from demo.sim.rollout import HOLD_SUCCESS_S, SuccessHold
+
+RENDER_MODES = ("rgb_array",)
+
+
+class DemoEnv(gymnasium.Env):
+    """A task environment (module docstring); ``sim`` is the :class:`demo.sim.env.Env` it drives."""
+
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": CONTROL_HZ}
+
+    def __init__(
+        self,
+        task: str,
+        robot: str | Path | None = None,
+        cameras: Sequence[Any] | str = (),
+        obs_keys: Sequence[str] | None = None,
+        action: str = "joint_pos",
+        rotation: str | None = None,
+        delta_frame: str | None = None,
+        render_mode: str | None = None,
+        render_camera: str = "front@256x256",
+        hold_success_s: float | None = HOLD_SUCCESS_S,
+        **task_options: Any,
+    ):
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise DemoError("render_mode", f"{render_mode!r} is not supported (choose from {', '.join(RENDER_MODES)})")
+        self.render_mode = render_mode
+        self._render_cameras = parse_cameras([render_camera])
+        self._render_open = False
+        self.sim = make_env(task, robot=robot, cameras=[cameras] if isinstance(cameras, str) else cameras,
+                            **task_options)
+        try:
+            self._setup(obs_keys, action, rotation, delta_frame, hold_success_s)
+        except Exception:
+            self.sim.close()
+            raise
+
+    def _setup(self, obs_keys: Sequence[str] | None, action: str, rotation: str | None, delta_frame: str | None,
+               hold_success_s: float | None) -> None:
+        sim = self.sim
+        observable = [k for k in sim.features if k.startswith("obs.")]
+        keys = list(observable if obs_keys is None else obs_keys)
+        unknown = [k for k in keys if k not in observable]
+        if unknown or not keys:
+            raise DemoError("obs_keys", f"unknown or no observation keys {unknown} (known: {', '.join(observable)})")
+        self.obs_keys = tuple(keys)
+        self.features = {k: sim.features[k] for k in self.obs_keys}
+        self.observation_space = observation_space(sim.features, self.obs_keys)
+        fmt = make_format(action, joint_names=sim.robot.arm_joints, rotation=rotation, delta_frame=delta_frame,
+                          where="action")
+        self.codec = ActionCodec(fmt, sim)
+        self.action_spec = sim.action_spec if fmt.name == "joint_pos" else fmt.spec()
+        self.action_space = action_space(fmt, _joint_limits(sim))
+        self.horizon = sim.horizon
+        self._hold = SuccessHold(hold_success_s, sim.fps)
+        self.reset_seed: int | None = None
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Start an episode from reset seed ``seed`` (module docstring); ``options`` takes nothing."""
+        super().reset(seed=seed)
+        if options:
+            raise DemoError("reset", f"unknown reset option(s) {', '.join(map(str, options))} (none are taken)")
+        self.reset_seed = int(seed) if seed is not None else int(self.np_random.integers(2**32))
+        obs = self.sim.reset(self.reset_seed)
+        self.codec.reset(self.sim)
+        self._hold.reset()
+        return self._observation(obs), {"seed": self.reset_seed}
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        obs, reward, success, truncated, _ = self.sim.step(self.codec.command(action))
+        failure = self.sim.task.failure(self.sim)
+        terminated = self._hold.update(bool(success)) or failure is not None
+        info = {"success": bool(success), "failure": failure}
+        return self._observation(obs), float(reward), bool(terminated), bool(truncated), info
+
+    def render(self) -> np.ndarray | None:
+        """The ``render_camera`` image (uint8 [height, width, 3]) of the current state."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() without a render_mode: make the env with render_mode='rgb_array'")
+            return None
+        if not self._render_open:
+            self._render_cameras.open(self.sim.model)
+            self._render_open = True
+        out: dict[str, np.ndarray] = {}
+        self._render_cameras.render(self.sim.data, out)
+        return next(iter(out.values()))
+
+    def close(self) -> None:
+        """Close the renderers (observation cameras and ``render``); calling it again does nothing."""
+        self._render_cameras.close()
+        self._render_open = False
+        self.sim.close()
+
+    # ------------------------------------------------------------------ demo API
+    def expert(self, rng: np.random.Generator | None = None, **style: Any) -> GymExpert:
+        """The task's scripted expert for the current episode (call after ``reset``); ``rng`` and
+        ``style`` as :meth:`demo.sim.env.Env.expert` takes them (default: per-episode choices drawn
+        from the reset seed)."""
+        return GymExpert(self, self.sim.expert(rng, **style))
+
+    def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        # Copies: the simulator reuses its last observation while the state is unchanged, and a
+        # caller keeps what it is given.
+        return {k: np.array(obs[k]) for k in self.obs_keys}
+
+
+def _joint_limits(sim: Any) -> np.ndarray:
+    """[n_arm, 2] (rad): the arm joints' ranges, infinite where a joint is unlimited."""
+    m = sim.model
+    ids = [m.joint(j).id for j in sim.robot.arm_joints]
+    limited = m.jnt_limited[ids].astype(bool)[:, None]
+    return np.where(limited, m.jnt_range[ids], np.array([[-np.inf, np.inf]]))

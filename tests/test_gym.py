@@ -1,0 +1,176 @@
+"""The tasks as Gymnasium environments: the API checker, spaces against a store, seeds, episode end, the expert."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import demo.gym
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.errors import DemoError
+from demo.seeds import episode_seed
+from demo.sim.avoid import OBSTACLE_HALF
+from demo.sim.rollout import run_expert
+from demo.sim.tasks import TASK_NAMES
+from demo.store import EpisodeStore
+
+# What check_env may say about our spaces, by design (demo.gym.spaces): state has no known bounds,
+# and actions are in the store's units (rad), not normalised to [-1, 1].
+ALLOWED_WARNINGS = (
+    "A Box observation space minimum value is -infinity",
+    "A Box observation space maximum value is infinity",
+    "For Box action spaces, we recommend using a symmetric and normalized space",
+)
+CAMERAS = ["front@32x32", "wrist@32x32"]
+
+
+def checked(env_id: str, **options) -> None:
+    env = gymnasium.make(env_id, render_mode="rgb_array", render_camera="front@32x32", **options)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            check_env(env.unwrapped)
+        frame = env.unwrapped.render()  # after check_env's resets (the wrapper has not seen one)
+    finally:
+        env.close()
+    unexpected = [str(w.message) for w in caught if not any(a in str(w.message) for a in ALLOWED_WARNINGS)]
+    assert unexpected == []
+    assert frame.shape == (32, 32, 3) and frame.dtype == np.uint8 and frame.std() > 0
+
+
+def test_every_task_is_registered() -> None:
+    assert list(demo.gym.ENV_IDS) == list(TASK_NAMES)
+    assert demo.gym.ENV_IDS["pick"] == "demo/Pick-v0"
+    assert all(i in gymnasium.registry for i in demo.gym.ENV_IDS.values())
+    demo.gym.register_all()  # again: nothing changes
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_check_env_state(task: str) -> None:
+    checked(demo.gym.ENV_IDS[task])
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_check_env_cameras(task: str) -> None:
+    checked(demo.gym.ENV_IDS[task], cameras=CAMERAS)
+
+
+def test_check_env_ee7_and_task_options() -> None:
+    checked("demo/Pick-v0", action="ee7")
+    env = gymnasium.make("demo/Stack-v0", blocks=2)
+    assert env.observation_space["obs.object_pos"].shape == (2, 3)
+    assert env.unwrapped.horizon == 260
+    env.close()
+
+
+def test_spaces_and_first_observation_match_a_collected_store(tmp_path: Path) -> None:
+    config = CollectConfig(task="pick", episodes=1, seed=3, cameras=(("front", 32, 32),))
+    collect_scripted(config, tmp_path / "p.zarr", workers=0)
+    store = EpisodeStore.open(tmp_path / "p.zarr")
+    env = gymnasium.make("demo/Pick-v0", cameras=["front@32x32"])
+    stored = {k: f for k, f in store.meta.features.items() if k.startswith("obs.")}
+    assert set(env.observation_space.spaces) == set(stored)
+    for key, space in env.observation_space.spaces.items():
+        assert (space.shape, space.dtype) == (stored[key].shape, np.dtype(stored[key].dtype)), key
+    assert env.action_space.shape == (store.meta.action.dim,) and env.unwrapped.action_spec == store.meta.action
+    # The reset seed is the store's seed column: the first observation is the stored frame 0, bit for bit.
+    seed = int(store.column("seed")[0])
+    assert seed == episode_seed(3, 0)
+    obs, info = env.reset(seed=seed)
+    assert info["seed"] == seed
+    frame0 = store.read_episode(0, list(stored))
+    for key in stored:
+        np.testing.assert_array_equal(obs[key], frame0[key][0], err_msg=key)
+    env.close()
+
+
+@pytest.mark.parametrize("action", ["joint_pos", "ee7"])
+def test_the_expert_succeeds_through_the_gym_api(action: str) -> None:
+    for task in ("reach", "pick"):
+        env = gymnasium.make(demo.gym.ENV_IDS[task], action=action)
+        for i in range(3):
+            obs, _ = env.reset(seed=episode_seed(0, i))
+            expert = env.unwrapped.expert()
+            for _ in range(env.unwrapped.horizon):
+                a = expert.act(obs)
+                assert a in env.action_space
+                obs, reward, terminated, truncated, info = env.step(a)
+                if terminated or truncated:
+                    break
+            assert terminated and info["success"] and reward == 1.0 and info["failure"] is None, (task, i)
+        env.close()
+
+
+def test_an_episode_terminates_when_collection_would_end_it() -> None:
+    env = gymnasium.make("demo/Reach-v0").unwrapped
+    seed = episode_seed(0, 1)
+    expected = run_expert(env.sim, seed)  # the rollout loop collection and demo eval run
+    obs, _ = env.reset(seed=seed)
+    expert, rewards, steps, terminated = env.expert(), [], 0, False
+    while not terminated:
+        obs, reward, terminated, truncated, info = env.step(expert.act(obs))
+        rewards.append(reward)
+        steps += 1
+    assert steps == expected.length
+    first = expected.first_success_step
+    assert rewards.index(1.0) + 1 == first and set(rewards[first - 1:]) == {1.0}
+
+    # Holding still never succeeds: truncated exactly at the horizon.
+    obs, _ = env.reset(seed=seed)
+    hold = np.r_[obs["obs.joint_pos"], obs["obs.gripper"]]
+    for t in range(env.horizon):
+        obs, reward, terminated, truncated, info = env.step(hold)
+        assert not terminated and reward == 0.0 and truncated == (t + 1 == env.horizon)
+    env.close()
+
+
+def test_a_collision_on_avoid_terminates() -> None:
+    env = gymnasium.make("demo/Avoid-v0").unwrapped
+    obs, _ = env.reset(seed=4)
+    sim = env.sim
+    ee = sim.ee_pose()[0]  # bring the obstacle to the hand
+    sim.set_mocap_pose(sim.task.obstacle_mocap, np.array([ee[0] + 0.09, ee[1], OBSTACLE_HALF[2]]))
+    obs, reward, terminated, truncated, info = env.step(np.r_[obs["obs.joint_pos"], 0.0])
+    assert terminated and not truncated and info == {"success": False, "failure": "collision"} and reward == 0.0
+    env.close()
+
+
+def test_same_seed_same_observations() -> None:
+    def trajectory(seed: int) -> list[dict[str, np.ndarray]]:
+        env = gymnasium.make("demo/Push-v0", action="ee7")
+        env.action_space.seed(0)
+        out = [env.reset(seed=seed)[0]]
+        out += [env.step(env.action_space.sample())[0] for _ in range(5)]
+        env.close()
+        return out
+
+    a, b, c = trajectory(7), trajectory(7), trajectory(8)
+    for x, y in zip(a, b):
+        assert all(np.array_equal(x[k], y[k]) for k in x)
+    assert not np.array_equal(a[0]["obs.object_pos"], c[0]["obs.object_pos"])
+
+
+def test_options_and_bad_input() -> None:
+    env = gymnasium.make("demo/Reach-v0", obs_keys=["obs.ee_pos", "obs.goal_pos"])
+    obs, _ = env.reset(seed=0)
+    assert set(obs) == {"obs.ee_pos", "obs.goal_pos"}
+    with pytest.raises(DemoError, match="non-finite action"):
+        env.step(np.full(env.action_space.shape, np.nan, dtype=np.float32))
+    with pytest.raises(DemoError, match="unknown reset option"):
+        env.reset(options={"state": 1})
+    env.close()
+    for options, needle in [
+        ({"obs_keys": ["obs.nope"]}, "obs.nope"),
+        ({"action": "torque"}, "unknown action representation"),
+        ({"cameras": ["front@32"]}, "NAME@WIDTHxHEIGHT"),
+        ({"cubes": 3}, "unknown task option"),
+    ]:
+        with pytest.raises(DemoError, match=needle):
+            gymnasium.make("demo/Reach-v0", **options)
+    with pytest.raises(DemoError, match="'human' is not supported"):  # gymnasium.make wraps rgb_array for human
+        demo.gym.DemoEnv("reach", render_mode="human")
