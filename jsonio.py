@@ -52,6 +52,15 @@ def replace_atomically(path: str | Path, write: Callable[[Path], object]) -> Non
 
 
 def write_json(path: str | Path, obj: Any) -> None:
-    """Write ``obj`` as JSON (:func:`dumps`, newline-terminated) to ``path``, atomically."""
+    """Write ``obj`` as JSON (:func:`dumps`, newline-terminated) to ``path``, atomically.
+
+    A ``path`` that exists and is not a regular file (``/dev/stderr``, a FIFO, a device) is written
+    to as it is: replacing it by rename would put a regular file in its place.
+    """
     text = dumps(obj) + "\n"
+    path = Path(path)
+    if path.exists() and not path.is_file():
+        with open(path, "w") as stream:
+            stream.write(text)
+        return
     replace_atomically(path, lambda tmp: tmp.write_text(text))

@@ -39,6 +39,7 @@ A MuJoCo Menagerie Panda checkout works with (its MJCF has no TCP site, so the c
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,6 +117,8 @@ def _floats(where: Path, key: str, value: Any, n: int | None = None) -> tuple[fl
         raise DemoError(where, f"'{key}' must be a number or a list of numbers, got {value!r}") from None
     if n is not None and len(out) != n:
         raise DemoError(where, f"'{key}' must have {n} numbers, got {len(out)}")
+    if not all(math.isfinite(v) for v in out):  # NaN would reach the simulator as a control
+        raise DemoError(where, f"'{key}' must be finite numbers, got {value!r}")
     return out
 
 

@@ -103,7 +103,7 @@ def bitflip(pattern: str | tuple[str, ...], first_bytes: int | None = None) -> C
         path = _pick(root, rng, pattern)
         data = bytearray(path.read_bytes())
         span = min(len(data), first_bytes or len(data))
-        where = sorted(rng.randrange(span * 8) for _ in range(rng.randint(1, 8)))
+        where = sorted(rng.sample(range(span * 8), min(span * 8, rng.randint(1, 8))))  # distinct: each one flips
         for bit in where:
             data[bit // 8] ^= 1 << (bit % 8)
         path.write_bytes(bytes(data))
