@@ -147,3 +147,19 @@ def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
     data, info = dagger_episode(env, ArmOnly(), seed=5, beta=0.0, gate=0.05, n_arm=n_arm)
     flags = data[LABEL_KEY].astype(bool)
     assert flags.all() and info["labels"] == len(flags)
+
+
+def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) -> None:
+    """A resumed run needs only its directory: the source store may be gone."""
+    import shutil
+
+    source = tmp_path / "source.zarr"
+    shutil.copytree(demos, source)
+    tc = TrainConfig(data=str(source), out=str(tmp_path / "run"), steps=60, batch_size=64, policy={"hidden": (32,)},
+                     val_fraction=0.25, log_every=20, val_every=20)
+    train_dagger(DaggerConfig(train=tc, rounds=1, episodes_per_round=1, round_steps=20))
+    shutil.rmtree(source)
+    summary = train_dagger(DaggerConfig(train=tc, rounds=2, episodes_per_round=1, round_steps=20), resume=True)
+    assert [r["round"] for r in summary["rounds"]] == [0, 1, 2] and summary["step"] == 60 + 2 * 20
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
+        assert store.column("dagger_round").tolist() == [0] * 8 + [1, 2]

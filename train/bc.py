@@ -44,7 +44,7 @@ def train(config: TrainConfig, *, progress: Progress | None = None, resume: bool
             run.restore(learner)
             learner.phase_steps = config.steps  # a longer --steps stretches the remaining schedule
         until = config.steps if stop_at is None else min(stop_at, config.steps)
-        run.fit(data.windows(data.train_episodes), until)
+        run.fit(until)
         if until == config.steps and not any(e["step"] == learner.step for e in run.metrics["eval"]):
             run.evaluate()  # with monitoring on, the final policy is always rolled out
         return run.finish()

@@ -47,7 +47,7 @@ Everything else of a run (seeding, the run directory, the loop, checkpoints, met
 from __future__ import annotations
 
 import dataclasses
-from contextlib import closing
+from contextlib import ExitStack, closing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -241,17 +241,22 @@ def train_dagger(config: DaggerConfig, *, progress: Progress | None = None, resu
     run = TrainingRun(tc, progress=progress, resume=resume, overwrite=overwrite, command=command,
                       total_steps=total_steps, name="dagger", title=f"dagger ({tc.algo}) on {source_path.name}")
 
-    # ---- 0. the aggregate store (in the run directory) and the environment
-    with EpisodeStore.open(source_path) as source:
-        make_env_for_store(source, config.task, tc.robot).close()  # a wrong task fails before anything is written
-    run.open_directory()
+    # ---- 0. the environment and the aggregate store (in the run directory)
     agg_path = run.out / DATA_DIR
-    if resume:
-        store = EpisodeStore.open(agg_path, "a")
-    else:
-        with EpisodeStore.open(source_path) as source:
-            store = create_aggregate(source, agg_path)
-    with run, store, closing(make_env_for_store(store, config.task, tc.robot)) as env:
+    with ExitStack() as stack:
+        if resume:
+            run.open_directory()  # a run without a train state is refused first
+        # The environment comes from the data DAgger aggregates into: the source for a new run, so that
+        # a wrong task or robot fails before anything is written; the run's own copy when resuming.
+        with EpisodeStore.open(agg_path if resume else source_path) as origin:
+            env = stack.enter_context(closing(make_env_for_store(origin, config.task, tc.robot)))
+            run.open_directory()
+            if not resume:
+                store = create_aggregate(origin, agg_path)
+        if resume:
+            store = EpisodeStore.open(agg_path, "a")
+        stack.enter_context(store)
+        stack.enter_context(run)
         features = {k for k in store.meta.features if k != LABEL_KEY}
         recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
         if features != recorded:
@@ -298,7 +303,7 @@ def train_dagger(config: DaggerConfig, *, progress: Progress | None = None, resu
 
         # ---- round 0: behaviour cloning on the demonstrations
         if done_round < 0:
-            run.fit(demos.windows(demos.train_episodes), tc.steps)
+            run.fit(tc.steps)
             run.metrics["rounds"].append(_round_entry(0, 0.0, [], demo_labels, demo_labels, learner.step, run.evaluate()))
             run.checkpoint({"round": 0, "round_done": True})
         # ---- rounds 1..R: roll out, aggregate, retrain
@@ -321,7 +326,7 @@ def train_dagger(config: DaggerConfig, *, progress: Progress | None = None, resu
             else:
                 learner = new_learner(data, r, learner.step)
                 run.attach(learner, data)
-            run.fit(data.windows(data.train_episodes), learner.step + config.round_steps, demos.validation_batch(tc.seed))
+            run.fit(learner.step + config.round_steps)
             entry = run.evaluate()
             labels_round = int(sum(int(i["labels"]) for i in infos))
             last = _round_entry(r, beta, infos, labels_round, labels_so_far(r), learner.step, entry)

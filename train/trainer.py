@@ -23,7 +23,7 @@ Use (behaviour cloning, :mod:`demo.train.bc`)::
         data = ...                         # demo.train.data.prepare
         learner = run.new_learner(data)
         run.begin(store, data, learner)    # opens the run directory, writes run.json
-        run.fit(data.windows(data.train_episodes), until=config.steps)
+        run.fit(until=config.steps)        # on the attached data's training windows
         return run.finish()
 """
 
@@ -45,7 +45,7 @@ from demo.store import ActionSpec, EpisodeStore, StoreMeta
 from demo.train import checkpoint as ckpt
 from demo.train.actor import ExecConfig
 from demo.train.config import TrainConfig
-from demo.train.data import Batch, TrainingData, Windows
+from demo.train.data import TrainingData
 from demo.train.optim import Learner, make_learner, train_step, validation_loss
 from demo.train.policy import build_policy, policy_config
 
@@ -113,6 +113,7 @@ class TrainingRun:
         self._fields = {"loss": "-", "val": "-", "success": "-", "info": ""}
         self._started = time.perf_counter()
         self._opened = False
+        self._saved: dict[str, Any] | None = None  # the train state a resumed run continues from, read once
 
     # ---------------------------------------------------------------------------- 1-3. set-up
     def __enter__(self) -> "TrainingRun":
@@ -136,7 +137,7 @@ class TrainingRun:
         if self.resume:
             if not (out / ckpt.STATE_FILE).is_file():
                 raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
-            ckpt.load_train_state(out)  # one that cannot be resumed from is refused before anything is written
+            self._saved = ckpt.load_train_state(out)  # one that cannot be resumed from is refused before any write
             return
         if out.exists() and any(out.iterdir()):
             if not self.overwrite:
@@ -165,15 +166,15 @@ class TrainingRun:
         self.execution = execution_config(self.config, store.meta.action)
         seeds = store.column("seed") if store.num_episodes else np.zeros(0, int)
         self.record = run_record(self.config, store.meta, data, learner, self.execution, self.command, algo_record, seeds)
-        # The run carries its robot (config and files) so that it evaluates wherever it is moved.
         self.record["robot"] = robot
-        ckpt.save_robot(self.out, robot, store.path)
         if self.resume:
             previous = ckpt.read_run(self.out)
             check_resumable(self.out, previous, self.record)
             self.record["created"] = previous.get("created", self.record["created"])
             self.record["resumed"] = [*previous.get("resumed", []),
-                                      {"at_step": None, "command": self.command, "time": ckpt.now()}]
+                                      {"at_step": int(self._saved["step"]), "command": self.command, "time": ckpt.now()}]
+        # The run carries its robot (config and files) so that it evaluates wherever it is moved.
+        ckpt.save_robot(self.out, robot, store.path)
         ckpt.write_run(self.out, self.record)
 
     def attach(self, learner: Learner, data: TrainingData) -> None:
@@ -181,12 +182,12 @@ class TrainingRun:
         self.learner, self.data = learner, data
 
     def saved_extra(self) -> dict[str, Any]:
-        """The algorithm's own state saved with the last checkpoint (e.g. DAgger's round)."""
-        return json.loads(ckpt.load_train_state(self.out).get("extra", "{}"))
+        """The algorithm's own state saved with the checkpoint a resumed run continues (e.g. DAgger's round)."""
+        return json.loads(self._resumed_state().get("extra", "{}"))
 
     def restore(self, learner: Learner) -> dict[str, Any]:
         """Load the last checkpoint into ``learner``, the batch RNG and the metrics; returns its extra."""
-        state = ckpt.load_train_state(self.out)
+        state = self._resumed_state()
         try:
             learner.policy.load_state_dict(state["policy"])
             if learner.ema is not None:
@@ -200,18 +201,21 @@ class TrainingRun:
             self.metrics = json.loads(state["metrics"])
         except (KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise DemoError(self.out, f"train state does not match this run ({str(exc).splitlines()[0][:160]})") from None
-        if self.record.get("resumed"):
-            self.record["resumed"][-1]["at_step"] = learner.step
-            ckpt.write_run(self.out, self.record)
         return json.loads(state.get("extra", "{}"))
 
+    def _resumed_state(self) -> dict[str, Any]:
+        if self._saved is None:
+            raise RuntimeError("no train state to resume from: open the directory of a run with resume=True first")
+        return self._saved
+
     # ---------------------------------------------------------------------------- 4. the loop
-    def fit(self, windows: Windows, until: int, val_batch: Batch | None | str = "auto") -> None:
-        """Optimise the attached learner until its step is ``until``, logging losses, evaluating every
-        ``eval_every`` steps. ``val_batch``: the fixed validation windows ("auto": the data's)."""
+    def fit(self, until: int) -> None:
+        """Optimise the attached learner on its data's training windows until its step is ``until``,
+        logging the training loss and the loss on the data's fixed validation windows, evaluating
+        every ``eval_every`` steps."""
         learner, c = self._attached(), self.config
-        if isinstance(val_batch, str):
-            val_batch = self.data.validation_batch(c.seed)
+        windows = self.data.windows(self.data.train_episodes)
+        val_batch = self.data.validation_batch(c.seed)
         self.tick()
         running, count, t0 = torch.zeros(()), 0, time.perf_counter()
         if val_batch is not None and learner.step == 0 and not self.metrics.get("val_loss"):
