@@ -1,4 +1,5 @@
-"""JSON of results and run files: a plain-JSON copy of Python/numpy values, and atomic file writes.
+"""JSON of results and run files: a plain-JSON copy of Python/numpy values, and atomic file writes
+(:func:`replace_atomically`, also what the store rewrites its episode table and chunks with).
 
 Library code (checkpoints, reports) writes its JSON here; :mod:`demo.cli.output` adds only the
 CLI's ``--json -`` (stdout) on top, so no library module needs ``demo.cli``.
@@ -39,16 +40,22 @@ def dumps(obj: Any) -> str:
 
 
 def replace_atomically(path: str | Path, write: Callable[[Path], object]) -> None:
-    """Create or replace ``path`` by ``write(tmp)`` to a hidden sibling ``.NAME.tmp`` renamed over it.
+    """Create or replace ``path`` by ``write(tmp)`` to a hidden sibling ``.NAME.PID.tmp`` renamed over it.
 
-    Readers see the old file or the new one, never a half-written one (a crash leaves at most the
-    ``.tmp`` file behind). The parent folder is created if needed.
+    Readers see the old file or the new one, never a half-written one. A failed write removes its
+    temporary file (a full disk gets its space back; the old file stays); a kill leaves at most the
+    ``.tmp`` file behind. The parent folder is created if needed. No fsync: the guarantee is against
+    process crashes and kills, not power loss.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_json(path: str | Path, obj: Any) -> None:

@@ -43,7 +43,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any

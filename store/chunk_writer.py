@@ -33,6 +33,8 @@ import numpy as np
 import zarr
 from zarr.codecs import BytesCodec, ZstdCodec
 
+from demo.jsonio import replace_atomically
+
 
 class RowWriter:
     """Writes rows ``[start, start + len(rows))`` along axis 0 of one zarr array."""
@@ -130,9 +132,7 @@ class RowWriter:
         chunk[row : row + len(part)] = part
         data = self._compressor.encode(chunk.tobytes())
         if holds_rows:
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
+            replace_atomically(path, lambda tmp: tmp.write_bytes(data))
         else:
             path.write_bytes(data)
         self._tail = (c, chunk)

@@ -22,7 +22,6 @@ per-episode info (for example ``dagger_round``). Rewriting a few thousand rows t
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +30,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from demo.errors import DemoError
+from demo.jsonio import replace_atomically
 
 FIXED_COLUMNS: dict[str, pa.DataType] = {
     "episode_index": pa.int64(),
@@ -88,19 +88,11 @@ def set_column(table: pa.Table, name: str, values: Any) -> pa.Table:
 
 
 def write_atomic(table: pa.Table, path: Path) -> None:
-    """Write the table next to ``path`` and rename it over: readers see the old or the new file.
-
-    No fsync: the guarantee is against process crashes and kills, like zarr's own chunk writes;
-    surviving power loss would need every chunk synced too.
-    """
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        # Rewritten at every commit: plain encoding writes it in ~half the time, and it stays small.
-        pq.write_table(table, tmp, compression="none", use_dictionary=False, write_statistics=False)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # a full disk gets its space back; the old table stays
-        raise
+    """Write the table next to ``path`` and rename it over (:func:`demo.jsonio.replace_atomically`):
+    readers see the old or the new file, and a failed write leaves the old one."""
+    # Rewritten at every commit: plain encoding writes it in ~half the time, and it stays small.
+    replace_atomically(path, lambda tmp: pq.write_table(table, tmp, compression="none", use_dictionary=False,
+                                                        write_statistics=False))
 
 
 def read(path: Path) -> pa.Table:

@@ -19,7 +19,7 @@ import pytest
 from demo.cli.main import main
 from demo.errors import DemoError
 from demo.interop.common import staged_output
-from demo.interop.sample import make_sample_store, sample_episode, sample_meta
+from demo.interop.sample import make_sample_store, sample_meta
 from demo.store import EpisodeStore
 
 
