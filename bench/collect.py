@@ -61,18 +61,19 @@ def raw_physics_rate(config: CollectConfig, seconds: float, episodes: int = 8) -
 
 
 def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict[str, float]:
-    stamps: list[tuple[float, int]] = []  # (time, frames committed so far) after each episode
+    stamps: list[tuple[float, float, int]] = []  # (time, this process's CPU time, frames committed so far) per episode
     start = time.perf_counter()
     result = collect_scripted(
         config,
         workdir / f"w{workers}.zarr",
         workers=workers,
         overwrite=True,
-        progress=lambda tick: stamps.append((time.perf_counter(), tick.fields["frames"])) if tick.done else None,
+        progress=lambda tick: stamps.append((time.perf_counter(), time.process_time(), tick.fields["frames"]))
+        if tick.done else None,
     )
     total = time.perf_counter() - start
     first_t = stamps[0][0]
-    steady_frames = stamps[-1][1] - stamps[0][1]
+    steady_frames = stamps[-1][2] - stamps[0][2]
     steady_s = stamps[-1][0] - first_t
     return {
         "workers": workers,
@@ -83,6 +84,10 @@ def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict
         "startup_and_first_episode_s": first_t - start,
         "frames_per_s": steady_frames / steady_s if steady_s > 0 else float("nan"),
         "frames_per_s_incl_startup": result.frames / total,
+        "steady_frames": steady_frames,
+        # CPU seconds of this process (its threads included) over the same window: with workers=0,
+        # all the collection's work, and a rate that other jobs on a shared machine disturb less.
+        "steady_cpu_s": stamps[-1][1] - stamps[0][1],
     }
 
 

@@ -1,4 +1,4 @@
-"""`demo bench infer`: milliseconds per action chunk of the diffusion policy (batch 1, CPU).
+"""`demo bench infer`: milliseconds per action chunk of the diffusion policy (batch 1).
 
 Figure: :meth:`DiffusionPolicy.predict` as ``demo eval`` runs it (DDIM at the policy's default
 steps, conditioning cached across steps, traced and frozen denoiser, torch on ``threads``
@@ -11,6 +11,10 @@ With ``--run``, success of both samplers on the same ``demo eval`` episodes (100
 reference rolled out through the fast path (the same function up to float rounding, ~1.8x faster).
 Latency does not depend on the weights' values, so without ``--run`` a freshly initialised network
 of the requested size is timed (observation/action sizes of the ``avoid`` task by default).
+
+``--device`` (:func:`demo.train.device.resolve_device`, ``auto`` as ``demo eval``): the policy and its
+observation on that device, the start noise drawn there; on CUDA each call is timed to the end of
+its kernels (a device synchronisation after it).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 import torch
 
 from demo.bench.common import machine
+from demo.train.device import resolve_device
 from demo.train.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
 from demo.train.policy import PolicySpec
 from demo.train.unet1d import count_parameters
@@ -33,24 +38,27 @@ TARGET_SUCCESS_POINTS = 3.0  # the figure's success may be at most this many poi
 
 
 def time_interleaved(samplers: dict[str, Any], obs: torch.Tensor, seconds: float, min_rounds: int = 5) -> dict[str, dict[str, float]]:
-    """Per-call wall time of each ``sampler.predict``, called in turn round after round.
+    """Per-call wall time of each ``sampler.predict`` on ``obs``'s device, called in turn round after round.
 
     Interleaving makes every figure see the same machine: on a shared 2-core machine the load of
     other processes changes by 2-5x within a minute, which would skew figures measured one after
     the other. Warm-up calls (tracing included) are not timed.
     """
-    g = torch.Generator().manual_seed(0)
+    g = torch.Generator(device=obs.device).manual_seed(0)
+    sync = torch.cuda.synchronize if obs.device.type == "cuda" else (lambda: None)
     times: dict[str, list[float]] = {name: [] for name in samplers}
     with torch.inference_mode():
         for sampler in samplers.values():
             sampler.predict(obs, g)
             sampler.predict(obs, g)
+        sync()
         start = time.perf_counter()
         rounds = 0
         while rounds < min_rounds or time.perf_counter() - start < seconds:
             for name, sampler in samplers.items():
                 t0 = time.perf_counter()
                 sampler.predict(obs, g)
+                sync()
                 times[name].append(time.perf_counter() - t0)
             rounds += 1
     out = {}
@@ -72,25 +80,26 @@ class _EagerReference(torch.nn.Module):
     def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         p, c = self.policy, self.policy.config
         b = obs.shape[0]
-        x = torch.randn((b, p.spec.horizon, p.spec.action_dim), generator=generator)
+        x = torch.randn((b, p.spec.horizon, p.spec.action_dim), generator=generator, device=obs.device)
         cond = obs.reshape(b, -1)
-        return p.scheduler().sample(lambda x, t, k: p.net(x, torch.full((b,), t), cond), x, c.inference_steps,
+        return p.scheduler().sample(lambda x, t, k: p.net(x, torch.full((b,), t, device=obs.device), cond), x, c.inference_steps,
                                     c.sampler, generator, spacing=c.spacing)
 
 
-def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_dim: int, n_obs: int, horizon: int) -> tuple[DiffusionPolicy, Any]:
-    """The run's policy and bundle, or a fresh network and None."""
+def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_dim: int, n_obs: int, horizon: int,
+                device: torch.device = torch.device("cpu")) -> tuple[DiffusionPolicy, Any]:
+    """The run's policy and bundle, or a fresh network and None, on ``device``."""
     if run:
         from demo.errors import DemoError
         from demo.train.checkpoint import load_bundle
 
-        bundle = load_bundle(run)
+        bundle = load_bundle(run, device)
         if not isinstance(bundle.policy, DiffusionPolicy):
             raise DemoError(run, f"is a {bundle.algo!r} run, not a diffusion policy")
         return bundle.policy, bundle
     torch.manual_seed(0)
     policy = DiffusionPolicy(PolicySpec(obs_dim, action_dim, n_obs, horizon), config)
-    return policy.eval(), None
+    return policy.to(device).eval(), None
 
 
 def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -> dict[str, Any]:
@@ -124,10 +133,12 @@ def run(
     episodes: int = 0,
     seed: int = 0,
     execute: int | None = None,
+    device: str = "auto",
 ) -> dict[str, Any]:
     """Latency of the default sampler vs DDPM-100; with a run and ``episodes``, also both successes."""
+    dev = resolve_device(device)
     base = DiffusionConfig(denoiser=denoiser, large=large, **({"channels": channels} if channels else {}))
-    policy, bundle = load_policy(run, base, obs_dim, action_dim, n_obs, horizon)
+    policy, bundle = load_policy(run, base, obs_dim, action_dim, n_obs, horizon, dev)
     source = f"run {run}" if bundle is not None else "freshly initialised network"
     if episodes and bundle is None:
         from demo.errors import DemoError
@@ -137,12 +148,12 @@ def run(
         with_sampler(policy, steps=steps)
     default = policy.config
     spec = policy.spec
-    obs = torch.randn(1, spec.n_obs, spec.obs_dim, generator=torch.Generator().manual_seed(1))
+    obs = torch.randn(1, spec.n_obs, spec.obs_dim, generator=torch.Generator().manual_seed(1)).to(dev)
     old_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         t0 = time.perf_counter()
-        with_sampler(policy, jit=True).predict(obs, torch.Generator().manual_seed(0))
+        with_sampler(policy, jit=True).predict(obs, torch.Generator(device=dev).manual_seed(0))
         trace_s = time.perf_counter() - t0
         T = default.train_steps
         timed = time_interleaved(
@@ -184,6 +195,7 @@ def run(
         "horizon": spec.horizon,
         "batch": 1,
         "threads": threads,
+        "device": str(dev),
         "figure": f"DDIM {default.inference_steps} steps ({default.spacing} spacing), cached conditioning, traced+frozen denoiser",
         "inference_steps": default.inference_steps,
         "ms_per_chunk": fast["ms_median"],

@@ -72,6 +72,42 @@ def bench_collect(
     write_json(r, json_out)
 
 
+@bench_app.command("render")
+def bench_render(
+    json_out: str = json_option(default="-"),
+    task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
+    camera: list[str] = typer.Option([], metavar="NAME@WxH", help="Camera to record (repeatable).",
+                                     show_default="front@64x64, wrist@64x64"),
+    episodes: int = typer.Option(20, help="Episodes per collection measurement (at least 2)."),
+    seconds: float = typer.Option(3.0, help="Timing budget of each bare-render reference (s)."),
+    seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
+    rounds: int = typer.Option(2, min=1, help="Rounds of reference + collection; best of each is reported."),
+    workers: int = typer.Option(1, min=0, help="Simulation processes of the collection (as demo collect); 0 = all in "
+                                               "this process."),
+) -> None:
+    """Collection frames/s with cameras vs bare mujoco.Renderer renders (+ physics) of the same scene."""
+    from demo.bench.render import DEFAULT_CAMERAS, run
+    from demo.cli.output import kv_table, report_console, write_json
+
+    r = run(task=task, cameras=camera or DEFAULT_CAMERAS, episodes=episodes, seconds=seconds, seed=seed,
+            rounds=rounds, workers=workers)
+    stored = r["camera_bytes"]["total"]
+    report_console(json_out).print(
+        kv_table(
+            f"bench render ({task}, {' + '.join(r['cameras'])})",
+            [
+                ("bare render + physics frames/s (reference)", r["reference"]["frames_per_s"]),
+                (f"collection frames/s (--workers {r['workers']})", r["figure"]["frames_per_s"]),
+                (f"ratio (target >= {r['target_ratio']})", f"{r['ratio']:.2f}: {'met' if r['meets_target'] else 'NOT met'}"),
+                *([("ratio in CPU time (this process)", r["cpu_ratio"])] if r["cpu_ratio"] is not None else []),
+                ("image bytes per frame, raw / stored", f"{stored['raw_bytes_per_frame']:,} / "
+                                                        f"{stored['stored_bytes_per_frame']:,.0f}"),
+            ],
+        )
+    )
+    write_json(r, json_out)
+
+
 _F = FaultsConfig()  # the benchmark's defaults live in its config dataclass
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import typer
 
 from demo.cli.bench import bench_app
-from demo.cli.options import RUN, json_option
+from demo.cli.options import RUN, device_option, json_option
 
 
 @bench_app.command("infer")
@@ -24,8 +24,9 @@ def bench_infer(
                                  show_default="100 with --run, else 0"),
     seed: int = typer.Option(0, help="Evaluation seed (as demo eval --seed)."),
     execute: int = typer.Option(None, help="With --episodes: actions executed per chunk.", show_default="the run's"),
+    device: str = device_option(),
 ) -> None:
-    """Milliseconds per action chunk (batch 1, CPU): DDIM fast path vs DDPM-100 eager (same network)."""
+    """Milliseconds per action chunk (batch 1): DDIM fast path vs DDPM-100 eager (same network)."""
     from demo.bench.infer import run as run_bench
     from demo.cli.output import report_console, table, write_json
     from demo.errors import DemoError
@@ -38,7 +39,7 @@ def bench_infer(
         r = run_bench(run=run, denoiser="unet" if (large or chans) else denoiser, large=large, channels=chans,
                       steps=inference_steps, threads=threads, seconds=seconds,
                       episodes=(100 if run else 0) if episodes is None else episodes, seed=seed,
-                      execute=execute)
+                      execute=execute, device=device)
     except ValueError as exc:
         raise DemoError("bench infer", str(exc)) from None
     rows = [

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.options import json_option, robot_option, run_argument
+from demo.cli.options import device_option, json_option, robot_option, run_argument
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 
@@ -29,6 +29,7 @@ def eval_(
                                show_default="no video"),
     video_episodes: int = typer.Option(4, help="Episodes in the video (tiled)."),
     video_size: int = typer.Option(128, help="Pixels per episode tile."),
+    device: str = device_option(),
     json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
@@ -37,7 +38,7 @@ def eval_(
     config = EvalConfig(
         run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},
         robot=str(robot) if robot else None, episodes=episodes, seed=seed, workers=workers, execute=execute,
-        ensemble=ensemble, video=str(video) if video else None, video_episodes=video_episodes, video_size=video_size,
+        ensemble=ensemble, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
     )
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
         result = evaluate(config, progress=progress)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from rich.table import Table
 
 from demo.cli.main import app
 from demo.cli.options import json_option, store_argument
@@ -58,4 +59,19 @@ def info(
             [(k, tuple(f["shape"]), f["dtype"], f["units"], f["description"]) for k, f in s["features"].items()],
         )
     )
+    if s["camera_bytes"]:
+        shown.print(camera_table(s["camera_bytes"]))
     write_json(s, json_out)
+
+
+def camera_table(sizes: dict) -> Table:
+    """Bytes per frame of each camera feature, raw and as stored (``EpisodeStore.summary()["camera_bytes"]``)."""
+
+    def row(name: str, size: str, b: dict) -> tuple:
+        stored, ratio = b["stored_bytes_per_frame"], b["compression_ratio"]
+        return (name, size, f"{b['raw_bytes_per_frame']:,}", "-" if stored is None else f"{stored:,.0f}",
+                "-" if ratio is None else f"{ratio:.1f}x")
+
+    rows = [row(k, "x".join(map(str, b["shape"])), b) for k, b in sizes["per_camera"].items()]
+    rows.append(row("all cameras", "", sizes["total"]))
+    return table("camera bytes per frame (stored: zstd chunks on disk)", ["key", "HxWxC", "raw", "stored", "ratio"], rows)

@@ -45,3 +45,8 @@ def mask_option(help: str = "Only the episodes of this store mask (see demo info
 
 def robot_option(help: str = "Robot config TOML.", default: str = "the built-in arm") -> Any:
     return typer.Option(None, "--robot", metavar="TOML", help=help, show_default=default)
+
+
+def device_option() -> Any:
+    return typer.Option("auto", metavar="auto|cpu|cuda|mps",
+                        help="Torch device: auto takes a CUDA GPU, else MPS, else the CPU (mixed precision on CUDA).")

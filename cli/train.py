@@ -10,7 +10,7 @@ import typer
 from demo.bench.compounding import CompoundingConfig
 from demo.cli.bench import bench_app
 from demo.cli.main import app, invocation
-from demo.cli.options import json_option, overwrite_option, robot_option, store_argument
+from demo.cli.options import device_option, json_option, overwrite_option, robot_option, store_argument
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.progress import Tick
@@ -31,13 +31,14 @@ def parse_policy_opts(items: list[str]) -> dict[str, str]:
 
 def _defaults(key: str) -> str:
     """A flag's default per algorithm, from the library's table (demo.train.config)."""
-    from demo.train.config import DAGGER_DEFAULTS, POLICY_DEFAULTS, policy_defaults
+    from demo.train.config import DAGGER_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
 
     values = {name: policy_defaults(name)[key] for name in POLICY_DEFAULTS}
     values["dagger"] = {**policy_defaults("bc"), **DAGGER_DEFAULTS}[key]
-    if len(set(map(str, values.values()))) == 1:
-        return str(next(iter(values.values())))
-    return ", ".join(f"{name} {value}" for name, value in values.items())
+    text = str(next(iter(values.values()))) if len(set(map(str, values.values()))) == 1 else \
+        ", ".join(f"{name} {value}" for name, value in values.items())
+    images = {name: policy_defaults(name, images=True)[key] for name in IMAGE_DEFAULTS if key in IMAGE_DEFAULTS[name]}
+    return text + ("; with images: " + ", ".join(f"{name} {value}" for name, value in images.items()) if images else "")
 
 
 @app.command()
@@ -59,10 +60,15 @@ def train(
     ensemble: bool = typer.Option(None, "--ensemble/--no-ensemble", help="Temporal ensembling of overlapping chunks (ACT).",
                                   show_default=_defaults("ensemble")),
     ensemble_decay: float = typer.Option(0.01, help="Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01)."),
-    obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys; 'all' for every one.",
-                                 show_default="low-dim keys except velocities"),
+    obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys; shorthands: all (every low-dim key), images, proprio.",
+                                 show_default="images + proprio with cameras, else low-dim keys except velocities"),
     absolute_actions: bool = typer.Option(False, "--absolute-actions", help="Predict absolute joint targets instead of targets relative to the joint positions."),
     obs_noise: float = typer.Option(0.0, help="Std of Gaussian noise on normalised observations during training."),
+    encoder: str = typer.Option(None, metavar="small|resnet18", help="Image encoder per camera (stores with cameras): small (CPU) or a GroupNorm ResNet-18 (GPU).",
+                                show_default="small"),
+    crop: float = typer.Option(None, help="Random-crop side as a fraction of the image (centre crop at evaluation); 1 = off.",
+                               show_default="0.875"),
+    device: str = device_option(),
     policy_opt: list[str] = typer.Option([], "--policy-opt", metavar="KEY=VALUE", help="Policy option (repeatable), e.g. hidden=512,512.",
                                          show_default="none"),
     train_mask: str = typer.Option(None, metavar="NAME", help="Train on this store mask's episodes only (e.g. a curated subset).",
@@ -100,7 +106,8 @@ def train(
         obs_noise=obs_noise, relative_actions=not absolute_actions, train_mask=train_mask, val_mask=val_mask,
         val_fraction=val_fraction, include_failures=include_failures, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, threads=threads,
-        robot=str(robot) if robot else None,
+        robot=str(robot) if robot else None, device=device,
+        encoder={k: v for k, v in (("backbone", encoder), ("crop", crop)) if v is not None},
     )
     if algo == "dagger":
         from demo.train.dagger import DaggerConfig, learner_config, train_dagger
@@ -144,23 +151,38 @@ def _obs_keys(text: str | None) -> tuple[str, ...]:
 @bench_app.command("train")
 def bench_train(
     json_out: str = json_option("the results", default="-"),
-    data: Path = typer.Option(None, metavar="STORE", help="Store to train on.", show_default="a synthetic store of --frames frames"),
-    frames: int = typer.Option(200_000, help="Frames of the synthetic store."),
-    seconds: float = typer.Option(5.0, help="Timing budget per measurement."),
-    batch_size: int = typer.Option(256, help="Windows per batch."),
-    chunk: int = typer.Option(1, help="Actions predicted per window."),
-    n_obs: int = typer.Option(1, help="Observation history in frames."),
-    hidden: str = typer.Option("512,512,512", help="MLP hidden sizes."),
-    threads: int = typer.Option(1, help="Torch threads."),
+    images: bool = typer.Option(False, "--images", help="Visuomotor BC through the image pipeline (cameras) instead of state BC."),
+    data: Path = typer.Option(None, metavar="STORE", help="Store to train on (with --images: one with cameras).",
+                              show_default="a synthetic store of --frames frames"),
+    frames: int = typer.Option(None, help="Frames of the synthetic store.", show_default="200,000; --images 10,000"),
+    image_size: int = typer.Option(None, help="--images: side of the synthetic store's two square cameras.", show_default="64"),
+    seconds: float = typer.Option(None, help="Timing budget of all measurements together.", show_default="5; --images 30"),
+    batch_size: int = typer.Option(None, help="Windows per batch.", show_default="256; --images demo train's"),
+    chunk: int = typer.Option(None, help="Actions predicted per window.", show_default="1; --images demo train's"),
+    n_obs: int = typer.Option(None, help="Observation history in frames.", show_default="1; --images demo train's"),
+    hidden: str = typer.Option(None, help="MLP hidden sizes.", show_default="512,512,512; --images the policy's"),
+    encoder: str = typer.Option(None, metavar="small|resnet18", help="--images: image encoder per camera.", show_default="small"),
+    device: str = device_option(),
+    threads: int = typer.Option(1, help="Torch threads (0 = torch's default)."),
     seed: int = typer.Option(0, help="Seed of the synthetic store, initialisation and batches."),
 ) -> None:
-    """BC training samples/s with the real data pipeline vs the same model's bare forward/backward."""
-    from demo.bench.train import run
+    """Training samples/s with the real data pipeline vs the same model's bare forward/backward (state, or --images)."""
+    from demo.bench.train import run, run_images
 
-    result = run(data=data, seconds=seconds, batch_size=batch_size, chunk=chunk, n_obs=n_obs,
-                 hidden=tuple(int(h) for h in hidden.split(",")), threads=threads, frames=frames, seed=seed)
-    report_console(json_out).print(kv_table("bench train", [
-        ("training samples/s (store -> windows -> step)", result["samples_per_s"]),
+    try:
+        sizes = tuple(int(h) for h in hidden.split(",")) if hidden else None
+    except ValueError:
+        raise DemoError("--hidden", f"{hidden!r} is not a comma-separated list of integers") from None
+    given = dict(data=data, frames=frames, seconds=seconds, batch_size=batch_size, chunk=chunk, n_obs=n_obs,
+                 hidden=sizes, threads=threads, seed=seed, device=device)
+    if images:
+        given.update(encoder=encoder, image_size=image_size)
+    elif encoder is not None or image_size is not None:
+        raise DemoError("--encoder" if encoder is not None else "--image-size", "applies to --images only")
+    result = (run_images if images else run)(**{k: v for k, v in given.items() if v is not None})
+    what = "store -> image windows -> crop -> step" if images else "store -> windows -> step"
+    report_console(json_out).print(kv_table(f"bench train{' --images' if images else ''} ({result['device']})", [
+        (f"training samples/s ({what})", result["samples_per_s"]),
         ("bare forward/backward on in-memory tensors (reference)", result["reference_samples_per_s"]),
         ("ratio", result["ratio_to_reference"]),
         ("full step on in-memory tensors", result["in_memory_step_samples_per_s"]),

@@ -36,6 +36,28 @@ IMAGE_CHANNELS = (1, 3, 4)
 
 
 @dataclass
+class VideoReport:
+    """One camera feature carried as MP4 video, and the pixel error of its round trip."""
+
+    key: str  # store key (obs.image_<camera>)
+    feature: str  # the dataset's feature name
+    codec: str
+    pix_fmt: str | None
+    frames: int
+    files: int
+    # Mean and max absolute difference decoded - source over every pixel channel, 0-255 units;
+    # None where there is no source to compare with (a foreign dataset).
+    mean_abs_error: float | None
+    max_abs_error: int | None
+    # How the error was measured, in words: the export decodes the files it wrote; an import reports
+    # the export's figure, saying whether it decoded the very frames that were measured.
+    measured: str
+
+    def to_json(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
 class InteropReport:
     """What an export or import did, for the CLI to print and tests to check."""
 
@@ -51,6 +73,7 @@ class InteropReport:
     # What the target format cannot carry (or what could not be imported): the warning.
     dropped: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    videos: list[VideoReport] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -64,6 +87,7 @@ class InteropReport:
             "extras": list(self.extras),
             "dropped": list(self.dropped),
             "notes": list(self.notes),
+            "videos": [v.to_json() for v in self.videos],
         }
 
 

@@ -8,6 +8,8 @@ Layout written by :func:`export_lerobot` (and read by :func:`import_lerobot`)::
       meta/tasks.parquet                         task (index) -> task_index
       meta/episodes/chunk-000/file-000.parquet   one row per episode (see below)
       data/chunk-000/file-000.parquet            one row per frame; a new file every ~100 MB
+      videos/<camera feature>/chunk-000/file-000.mp4   the camera's frames, episodes one after another;
+                                                 a new file every ~500 MB
 
 How store keys become LeRobot features:
 
@@ -17,8 +19,12 @@ store                  LeRobot
 ``action``             ``action`` float32 [d], names = the action spec's names
 float32 ``obs.*``      concatenated, in feature order, into ``observation.state`` float32; the
                        split is recorded in the feature's ``names`` (``joint_pos.j1``, ...)
-uint8 [H,W,C] ``obs``  ``observation.images.<camera>``, ``dtype: image``: PNG bytes embedded in the
-                       data parquet (lossless; no video encoder is used, so ``video_path`` is null)
+uint8 [H,W,3] ``obs``  ``observation.images.<camera>``, ``dtype: video`` (the default): MP4 files in
+                       LeRobot's ``videos/`` layout, AV1 ``yuv420p`` as LeRobot encodes them
+                       (:mod:`demo.interop.video`; lossy: the export decodes what it wrote and
+                       reports the pixel error); with ``images="embed"``, and for 1- or 4-channel
+                       or tiny cameras, ``dtype: image``: PNG bytes embedded in the data parquet
+                       (lossless)
 other ``obs.*``,       extra columns named like the store key, dtype kept (``sim.state`` float64,
 ``sim.*``, ``info.*``  a float64/int/bool ``obs.*``): LeRobot reads every ``observation*`` feature
                        as a policy input, so only float32 obs go under ``observation.``
@@ -35,7 +41,9 @@ parquet as ``demo/<column>`` with their arrow types. Together they make store ->
 bit-exact. Episodes parquet columns: ``episode_index``, ``tasks``, ``length``,
 ``data/chunk_index``, ``data/file_index``, ``dataset_from_index``, ``dataset_to_index``,
 ``meta/episodes/chunk_index``, ``meta/episodes/file_index``, ``stats/<feature>/<stat>``,
-``demo/<column>``.
+``demo/<column>``, and per video feature ``videos/<feature>/chunk_index``, ``file_index``,
+``from_timestamp``, ``to_timestamp`` (seconds into its file: frame ``k`` of the episode is presented
+at ``from_timestamp + k / fps``).
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -56,6 +65,7 @@ from demo.errors import DemoError
 from demo.interop import lerobot_stats
 from demo.interop.common import (
     InteropReport,
+    VideoReport,
     append_info,
     batches,
     camera_name,
@@ -69,6 +79,7 @@ from demo.interop.common import (
     staged_output,
     track,
 )
+from demo.interop.video import ClipWriter, PixelError, StreamInfo, VideoDecoder, VideoSettings, encode_clip, unencodable
 from demo.interop.untrusted import (
     MAX_EPISODE_FRAMES,
     check_count,
@@ -90,6 +101,7 @@ CHUNKS_SIZE = 1000
 DATA_FILE_MB = 100
 VIDEO_FILE_MB = 500
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 INFO_PATH = "meta/info.json"
 STATS_PATH = "meta/stats.json"
@@ -100,6 +112,7 @@ STATE = "observation.state"
 FRAME_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 DONE = "next.done"
 IMAGE_NAMES = ["height", "width", "channels"]
+IMAGE_MODES = ("video", "embed")  # how camera features are exported: MP4 videos or PNG in the parquet
 
 
 @dataclass(frozen=True)
@@ -108,7 +121,7 @@ class Column:
 
     key: str  # store key
     feature: str  # LeRobot feature name
-    kind: str  # "state": a slice of observation.state | "image" | "array"
+    kind: str  # "state": a slice of observation.state | "image" (PNG in parquet) | "video" (MP4) | "array"
     shape: tuple[int, ...]  # store frame shape
     dtype: str
     start: int = 0  # slice of observation.state (kind "state")
@@ -133,8 +146,11 @@ class Column:
 
 
 # ================================================================================================ export
-def plan_columns(meta: StoreMeta) -> list[Column]:
-    """Map every store feature to a LeRobot feature (see the module docstring)."""
+def plan_columns(meta: StoreMeta, images: str = "video") -> list[Column]:
+    """Map every store feature to a LeRobot feature (see the module docstring); cameras become
+    videos with ``images="video"`` where frames can be encoded, else embedded PNG."""
+    if images not in IMAGE_MODES:
+        raise ValueError(f"images must be one of {IMAGE_MODES}, got {images!r}")
     taken = {STATE, DONE, *FRAME_COLUMNS}
     columns: list[Column] = []
     offset = 0
@@ -152,7 +168,8 @@ def plan_columns(meta: StoreMeta) -> list[Column]:
         if key == "action":
             columns.append(Column(key, unique("action"), "array", shape, spec.dtype))
         elif key.startswith("obs.") and is_image(spec):
-            columns.append(Column(key, unique(f"observation.images.{camera_name(key)}"), "image", shape, spec.dtype))
+            kind = "video" if images == "video" and unencodable(shape) is None else "image"
+            columns.append(Column(key, unique(f"observation.images.{camera_name(key)}"), kind, shape, spec.dtype))
         elif key.startswith("obs.") and spec.dtype == "float32":
             width = int(np.prod(shape, dtype=np.int64)) if shape else 1
             columns.append(Column(key, STATE, "state", shape, spec.dtype, offset, offset + width))
@@ -178,8 +195,8 @@ def _state_names(meta: StoreMeta, columns: list[Column]) -> list[str]:
     return names
 
 
-def _features(meta: StoreMeta, columns: list[Column]) -> dict[str, dict[str, Any]]:
-    """info.json ``features``: name -> {dtype, shape, names}, in data-column order."""
+def _features(meta: StoreMeta, columns: list[Column], settings: VideoSettings) -> dict[str, dict[str, Any]]:
+    """info.json ``features``: name -> {dtype, shape, names} (and a video's ``info``), in data-column order."""
     features: dict[str, dict[str, Any]] = {}
     state_width = sum(c.width for c in columns if c.kind == "state")
     for c in columns:
@@ -189,6 +206,9 @@ def _features(meta: StoreMeta, columns: list[Column]) -> dict[str, dict[str, Any
                 features[STATE] = {"dtype": "float32", "shape": [state_width], "names": _state_names(meta, columns)}
         elif c.kind == "image":
             features[c.feature] = {"dtype": "image", "shape": list(c.shape), "names": list(IMAGE_NAMES)}
+        elif c.kind == "video":
+            features[c.feature] = {"dtype": "video", "shape": list(c.shape), "names": list(IMAGE_NAMES),
+                                   "info": _video_info(c.shape, float(meta.fps), settings)}
         else:
             names = list(spec.names) if spec.names is not None and len(spec.names) == c.width else None
             features[c.feature] = {"dtype": c.dtype, "shape": [c.width], "names": names}
@@ -197,10 +217,31 @@ def _features(meta: StoreMeta, columns: list[Column]) -> dict[str, dict[str, Any
     return features
 
 
+def _video_info(shape: tuple[int, ...], fps: float, settings: VideoSettings) -> dict[str, Any]:
+    """A video feature's ``info`` block, as LeRobot describes the files it encodes."""
+    return {
+        "video.height": shape[0],
+        "video.width": shape[1],
+        "video.codec": "av1" if settings.codec == "libsvtav1" else settings.codec,
+        "video.pix_fmt": settings.pix_fmt,
+        "video.is_depth_map": False,
+        "video.fps": _number(fps),
+        "video.channels": shape[2],
+        "has_audio": False,
+    }
+
+
+def _number(fps: float) -> int | float:
+    return int(fps) if fps.is_integer() else fps
+
+
 def _hf_features(features: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The Hugging Face ``datasets`` schema LeRobot would write into the parquet metadata."""
+    """The Hugging Face ``datasets`` schema LeRobot would write into the parquet metadata (videos
+    live in their own files, not in the parquet)."""
     out: dict[str, Any] = {}
     for name, f in features.items():
+        if f["dtype"] == "video":
+            continue
         if f["dtype"] == "image":
             out[name] = {"_type": "Image"}
         elif f["shape"] == [1]:
@@ -274,6 +315,76 @@ class _DataWriter:
         self.file_number += 1
 
 
+class _VideoWriter:
+    """One camera feature's ``videos/<feature>/chunk-CCC/file-FFF.mp4`` files: each episode is
+    encoded on its own and appended to the current file (as LeRobot concatenates them); an episode
+    that would bring a file to ``file_mb`` starts the next one.
+
+    Each finished file is decoded again and compared with the source frames (``reference(episode)``,
+    read from the store anew rather than kept in memory), giving the exact round-trip error."""
+
+    def __init__(self, root: Path, column: Column, fps: float, settings: VideoSettings, file_mb: float,
+                 reference: Callable[[int], np.ndarray]):
+        self.root, self.column, self.fps, self.settings = root, column, fps, settings
+        self.limit = file_mb * 2**20
+        self.reference = reference
+        self.file_number = 0
+        self.writer: ClipWriter | None = None
+        self.in_file: list[tuple[int, int, int]] = []  # (source episode, first frame in the file, length)
+        self.files: list[str] = []
+        self.error = PixelError()
+
+    def _path(self, file_number: int) -> str:
+        chunk, file = divmod(file_number, CHUNKS_SIZE)
+        return VIDEO_PATH.format(video_key=self.column.feature, chunk_index=chunk, file_index=file)
+
+    def add(self, source_episode: int, frames: np.ndarray) -> dict[str, Any]:
+        """Encode one episode's frames; return its ``videos/<feature>/*`` episode columns."""
+        clip = encode_clip(frames, self.fps, self.settings, self.root / self._path(self.file_number))
+        if self.writer is not None and self.writer.bytes + len(clip) >= self.limit:
+            self.flush()
+        if self.writer is None:
+            path = self.root / self._path(self.file_number)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = ClipWriter(path, self.fps)
+        start = self.writer.frames
+        self.writer.append(clip, len(frames))
+        self.in_file.append((source_episode, start, len(frames)))
+        chunk, file = divmod(self.file_number, CHUNKS_SIZE)
+        prefix = f"videos/{self.column.feature}/"
+        return {prefix + "chunk_index": chunk, prefix + "file_index": file,
+                prefix + "from_timestamp": start / self.fps, prefix + "to_timestamp": (start + len(frames)) / self.fps}
+
+    def flush(self) -> None:
+        """Finish the current file and measure it against the source frames."""
+        if self.writer is None:
+            return
+        self.writer.close()
+        with VideoDecoder(self.writer.path, self.column.shape) as decoder:
+            for episode, start, length in self.in_file:
+                self.error.add(self.reference(episode), decoder.read(start / self.fps, length, self.fps))
+        self.files.append(self._path(self.file_number))
+        self.writer, self.in_file = None, []
+        self.file_number += 1
+
+    def abandon(self) -> None:
+        """Close an unfinished file (the export failed; its folder is removed)."""
+        if self.writer is not None:
+            self.writer.abandon()
+            self.writer = None
+
+    def report(self) -> VideoReport:
+        return VideoReport(self.column.key, self.column.feature, _video_info(self.column.shape, self.fps, self.settings)
+                           ["video.codec"], self.settings.pix_fmt, self.error.frames, len(self.files),
+                           self.error.mean_abs, self.error.max_abs, "decoded the written files")
+
+    def extras(self) -> dict[str, Any]:
+        """What info.json's ``demo`` block records of this video (the import reports it)."""
+        return {"codec": self.settings.codec, "pix_fmt": self.settings.pix_fmt, "crf": self.settings.crf,
+                "gop": self.settings.gop, "frames": self.error.frames, "mean_abs_error": self.error.mean_abs,
+                "max_abs_error": self.error.max_abs, "decoded_crc32": self.error.crc32}
+
+
 def _tasks_table(tasks: list[str]) -> pa.Table:
     """tasks.parquet as pandas writes a frame indexed by ``task`` (``pd.read_parquet`` restores it)."""
     table = pa.table({"task_index": pa.array(range(len(tasks)), pa.int64()), "task": pa.array(tasks, pa.string())})
@@ -301,12 +412,17 @@ def export_lerobot(
     *,
     overwrite: bool = False,
     episodes: EpisodeSelection = None,
+    images: str = "video",
+    video: VideoSettings = VideoSettings(),
     data_file_mb: float = DATA_FILE_MB,
+    video_file_mb: float = VIDEO_FILE_MB,
     progress: Progress | None = None,
 ) -> InteropReport:
     """Write the store's (selected) episodes as a LeRobotDataset v3.0 folder at ``out``.
 
-    ``progress``: a tick per episode written (stage ``export lerobot``)."""
+    ``images``: ``"video"`` (MP4 files encoded with ``video``, LeRobot's default layout) or
+    ``"embed"`` (PNG in the data parquet, lossless). ``progress``: a tick per episode written
+    (stage ``export lerobot``)."""
     store_path, out = Path(store_path), Path(out)
     check_not_same(store_path, out)
     src = EpisodeStore.open(store_path)
@@ -314,8 +430,8 @@ def export_lerobot(
     chosen = src.select(episodes)
     if len(chosen) == 0:
         raise DemoError(store_path, "has no episodes to export")
-    columns = plan_columns(meta)
-    features = _features(meta, columns)
+    columns = plan_columns(meta, images)
+    features = _features(meta, columns, video)
     carried = carried_columns(src)
     report = InteropReport("lerobot", "export", store_path, out, episodes=int(len(chosen)))
 
@@ -324,36 +440,49 @@ def export_lerobot(
     for i in chosen:
         tasks.setdefault(str(task_column[i]), len(tasks))
 
-    accumulators = {name: lerobot_stats.StatsAccumulator(f["dtype"] == "image") for name, f in features.items()}
+    accumulators = {name: lerobot_stats.StatsAccumulator(f["dtype"] in ("image", "video"))
+                    for name, f in features.items()}
     episode_rows: list[dict[str, Any]] = []
     fps = float(meta.fps)
     with staged_output(out, overwrite=overwrite, looks_like=_is_lerobot_dir, kind="LeRobot dataset", is_dir=True) as tmp:
         writer = _DataWriter(tmp, _hf_features(features), data_file_mb)
+        videos = {c.feature: _VideoWriter(tmp, c, fps, video, video_file_mb,
+                                          lambda i, key=c.key: src.read_episode(i, keys=[key])[key])
+                  for c in columns if c.kind == "video"}
         index = 0
-        for new_index, src_index in enumerate(track(chosen, len(chosen), "export lerobot", progress)):
-            data = src.read_episode(int(src_index))
-            length = len(data["action"])
-            task_index = tasks[str(task_column[src_index])]
-            values = _frame_values(columns, data, new_index, index, task_index, fps)
-            table = pa.table({name: _arrow(features[name], v) for name, v in values.items()})
-            chunk, file = writer.add(table)
-            row: dict[str, Any] = {
-                "episode_index": new_index,
-                "tasks": [str(task_column[src_index])],
-                "length": length,
-                "data/chunk_index": chunk,
-                "data/file_index": file,
-                "dataset_from_index": index,
-                "dataset_to_index": index + length,
-                "meta/episodes/chunk_index": 0,
-                "meta/episodes/file_index": 0,
-            }
-            for name, v in values.items():
-                for stat, value in lerobot_stats.to_json(accumulators[name].add(v)).items():
-                    row[f"stats/{name}/{stat}"] = value
-            episode_rows.append(row)
-            index += length
-        writer.flush()
+        try:
+            for new_index, src_index in enumerate(track(chosen, len(chosen), "export lerobot", progress)):
+                data = src.read_episode(int(src_index))
+                length = len(data["action"])
+                task_index = tasks[str(task_column[src_index])]
+                values = _frame_values(columns, data, new_index, index, task_index, fps)
+                table = pa.table({name: _arrow(features[name], v) for name, v in values.items() if name not in videos})
+                chunk, file = writer.add(table)
+                row: dict[str, Any] = {
+                    "episode_index": new_index,
+                    "tasks": [str(task_column[src_index])],
+                    "length": length,
+                    "data/chunk_index": chunk,
+                    "data/file_index": file,
+                    "dataset_from_index": index,
+                    "dataset_to_index": index + length,
+                    "meta/episodes/chunk_index": 0,
+                    "meta/episodes/file_index": 0,
+                }
+                for feature, video in videos.items():
+                    row.update(video.add(int(src_index), values[feature]))
+                for name, v in values.items():
+                    for stat, value in lerobot_stats.to_json(accumulators[name].add(v)).items():
+                        row[f"stats/{name}/{stat}"] = value
+                episode_rows.append(row)
+                index += length
+            writer.flush()
+            for v in videos.values():
+                v.flush()
+        except BaseException:
+            for v in videos.values():
+                v.abandon()
+            raise
 
         episode_table = pa.Table.from_pylist(episode_rows)
         for name, dtype in carried:
@@ -378,7 +507,8 @@ def export_lerobot(
             "columns": [c.to_json() for c in columns],
             "episode_columns": [name for name, _ in carried],
             "source_episodes": [int(i) for i in chosen] if len(chosen) != src.num_episodes else None,
-            "images": "PNG bytes embedded in the data parquet (dtype image); no video encoder is used",
+            "images": images,
+            "videos": {feature: v.extras() for feature, v in videos.items()},
         }
         info = {
             "codebase_version": CODEBASE_VERSION,
@@ -388,20 +518,24 @@ def export_lerobot(
             "total_tasks": len(tasks),
             "chunks_size": CHUNKS_SIZE,
             "data_files_size_in_mb": data_file_mb,
-            "video_files_size_in_mb": VIDEO_FILE_MB,
-            "fps": int(fps) if fps.is_integer() else fps,
+            "video_files_size_in_mb": video_file_mb,
+            "fps": _number(fps),
             "splits": {"train": f"0:{len(chosen)}"},
             "data_path": DATA_PATH,
-            "video_path": None,
+            "video_path": VIDEO_PATH if videos else None,
             "features": features,
             EXTRA_KEY: extras,
         }
         (tmp / INFO_PATH).write_text(json.dumps(info, indent=2) + "\n")
-        report.files = [INFO_PATH, STATS_PATH, TASKS_PATH, episodes_rel, *writer.files]
+        report.files = [INFO_PATH, STATS_PATH, TASKS_PATH, episodes_rel, *writer.files,
+                        *(f for v in videos.values() for f in v.files)]
     report.frames = index
     report.extras = _extras_list(meta, carried)
-    if any(c.kind == "image" for c in columns):
-        report.notes.append("camera images are embedded as PNG (dtype image), not mp4 videos: no video encoder is used")
+    report.videos = [v.report() for v in videos.values()]
+    for c in columns:
+        if c.kind == "image":
+            why = "embedding was asked for" if images == "embed" else unencodable(c.shape)
+            report.notes.append(f"{c.key}: PNG embedded in the data parquet (dtype image, lossless), not MP4: {why}")
     own = [f"{c.key} ({c.dtype})" for c in columns if c.key.startswith("obs.") and c.kind == "array"]
     if own:
         report.notes.append("not float32, so kept out of observation.state (columns named like the store key, "
@@ -455,6 +589,7 @@ def _arrow(feature: dict[str, Any], values: np.ndarray) -> pa.Array:
 MAX_JSON_BYTES = 64 * 2**20  # meta/info.json is a few kB; a bigger one is not metadata
 DATA_FIELDS = ("chunk_index", "file_index")
 VIDEO_FIELDS = ("video_key", "chunk_index", "file_index", "episode_chunk", "episode_index")
+VIDEO_LOCATORS = ("/chunk_index", "/file_index")  # of videos/<feature>/..., integers like the data's
 # Integer columns of meta/episodes and what bounds them.
 EPISODE_INTEGERS = ("episode_index", "length", "data/chunk_index", "data/file_index", "dataset_from_index",
                     "dataset_to_index")
@@ -514,7 +649,7 @@ def read_info(root: Path) -> dict[str, Any]:
         info[key] = check_count(info[key], info_path, key)
     if info.get("data_path") is not None:
         check_template(info["data_path"], info_path, "data_path", DATA_FIELDS)
-    if info.get("video_path") is not None:  # videos are not read yet; a template leading out is refused anyway
+    if info.get("video_path") is not None:
         check_template(info["video_path"], info_path, "video_path", VIDEO_FIELDS)
     return info
 
@@ -532,8 +667,8 @@ def _episodes_table(root: Path, info: dict[str, Any]) -> pa.Table:
     for column in ("episode_index", "length"):
         if column not in table.column_names:
             raise DemoError(files[0], f"has no column {column!r}")
-    for column in EPISODE_INTEGERS:
-        if column in table.column_names:
+    for column in table.column_names:
+        if column in EPISODE_INTEGERS or (column.startswith("videos/") and column.endswith(VIDEO_LOCATORS)):
             _integers(table.column(column), f"{folder}: {column}")
     order = np.argsort(table.column("episode_index").to_numpy(), kind="stable")
     table = table.take(pa.array(order))
@@ -649,17 +784,18 @@ def _foreign_plan(info: dict[str, Any], info_path: Path, report: InteropReport) 
         if not isinstance(shape, list) or len(shape) > 8:
             raise DemoError(info_path, f"feature {name!r}: shape {shape!r} is not a list of sizes")
         names = _flat_names(f.get("names"))
-        if dtype == "video":
-            report.dropped.append(f"{name}: mp4 video feature (no video decoder installed; re-export with images embedded)")
-            continue
         if dtype == "string":
             report.dropped.append(f"{name}: per-frame strings (a store holds numeric arrays only)")
             continue
-        if dtype == "image":
+        if dtype in ("image", "video"):
+            hwc = _image_shape(tuple(shape), names, info_path)
+            if dtype == "video" and hwc[2] != 3:
+                report.dropped.append(f"{name}: a video of {hwc[2]} channels (videos are decoded as RGB)")
+                continue
             camera = name[len("observation.images."):] if name.startswith("observation.images.") else name
             key = store_key("obs", "image_" + camera.replace(".", "_"), taken, info_path)
-            hwc, _ = check_feature(key, _image_shape(tuple(shape), names, info_path), "uint8", info_path)
-            columns.append(Column(key, name, "image", hwc, "uint8"))
+            hwc, _ = check_feature(key, hwc, "uint8", info_path)
+            columns.append(Column(key, name, dtype, hwc, "uint8"))
             specs[key] = FeatureSpec(hwc, "uint8", f"camera {name}", "rgb")
             continue
         try:
@@ -779,10 +915,11 @@ def import_lerobot(
 
     def episodes_data() -> Any:
         for i, row, path, table in track(frames(), episodes.num_rows, "import lerobot", progress):
-            data, info_row = _episode_from_table(i, row, path, table, columns, tasks, extras is not None)
+            data, info_row = _episode_from_table(i, row, path, table, columns, tasks, extras is not None, videos)
             yield data, info_row
 
     frames_total = 0
+    videos = _VideoReader(root, info, root / "meta" / "episodes")
     with staged_output(out, overwrite=overwrite, looks_like=lambda p: (p / "zarr.json").is_file(),
                        kind="demo store", is_dir=True) as tmp:
         store = EpisodeStore.create(tmp, meta, overwrite=True)
@@ -801,6 +938,8 @@ def import_lerobot(
                                 f"restored ({first_line(exc)})") from None
         finally:
             store.close()
+            videos.close()
+    report.videos = [videos.report(c, extras) for c in columns if c.kind == "video"]
     report.episodes = int(episodes.num_rows)
     report.frames = frames_total
     report.files = [str(out)]
@@ -815,8 +954,9 @@ def _episode_from_table(
     columns: list[Column],
     tasks: dict[int, str],
     ours: bool,
+    videos: "_VideoReader",
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """One episode's store arrays and fixed per-episode info from its data-file rows."""
+    """One episode's store arrays and fixed per-episode info from its data-file rows (and videos)."""
     for col in ("episode_index", "frame_index"):
         if col not in table.column_names:
             raise DemoError(path, f"has no column {col!r}")
@@ -838,6 +978,9 @@ def _episode_from_table(
     data: dict[str, np.ndarray] = {}
     state: np.ndarray | None = None
     for c in columns:
+        if c.kind == "video":
+            data[c.key] = videos.frames(c, i, row, length)
+            continue
         if c.feature not in ep.column_names:
             raise DemoError(path, f"has no column {c.feature!r}")
         where = f"{path}: {c.feature}"
@@ -877,6 +1020,82 @@ def _episode_from_table(
     return data, append_info(check_info(episode_info, f"{path}: episode {i}"))
 
 
+class _VideoReader:
+    """Video features' frames, episode by episode, from the files ``meta/episodes`` points at
+    (``video_path`` filled with its ``videos/<feature>/chunk_index`` and ``file_index``), starting
+    at its ``from_timestamp``; one file open per feature at a time."""
+
+    def __init__(self, root: Path, info: dict[str, Any], episodes_where: Path):
+        self.root, self.info_path, self.where = root, root / INFO_PATH, episodes_where
+        self.template: str | None = info.get("video_path")
+        self.fps = float(info["fps"])
+        self.open: dict[str, tuple[Path, VideoDecoder]] = {}
+        self.decoded: dict[str, PixelError] = {}
+        self.files: dict[str, set[Path]] = {}
+        self.streams: dict[str, StreamInfo] = {}
+
+    def frames(self, c: Column, episode: int, row: dict[str, Any], length: int) -> np.ndarray:
+        """Episode ``episode``'s ``length`` frames of video feature ``c``, uint8 ``[length, H, W, 3]``."""
+        if self.template is None:
+            raise DemoError(self.info_path, f"feature {c.feature!r} is a video but video_path is null")
+        prefix = f"videos/{c.feature}/"
+        chunk, file, start = (row.get(prefix + k) for k in ("chunk_index", "file_index", "from_timestamp"))
+        if chunk is None or file is None or start is None:
+            raise DemoError(self.where, f"episode {episode} has no {prefix}chunk_index, file_index and from_timestamp")
+        if isinstance(start, bool) or not isinstance(start, (int, float)) or not 0 <= start <= MAX_EPISODE_FRAMES / self.fps:
+            raise DemoError(self.where, f"episode {episode}: {prefix}from_timestamp {start!r} is not a time in the video")
+        rel = self.template.format(video_key=c.feature, chunk_index=chunk, file_index=file, episode_chunk=chunk,
+                                   episode_index=episode)
+        path = contained(self.root, rel, self.info_path, "video_path")
+        current = self.open.get(c.feature)
+        if current is None or current[0] != path:
+            if current is not None:
+                current[1].close()
+                del self.open[c.feature]
+            if not path.is_file():
+                raise DemoError(path, "is missing")
+            decoder = VideoDecoder(path, c.shape)
+            self.open[c.feature] = (path, decoder)
+            self.files.setdefault(c.feature, set()).add(path)
+            self.streams[c.feature] = decoder.info
+        frames = self.open[c.feature][1].read(float(start), length, self.fps)
+        self.decoded.setdefault(c.feature, PixelError()).fingerprint(frames)
+        return frames
+
+    def close(self) -> None:
+        for _, decoder in self.open.values():
+            decoder.close()
+        self.open.clear()
+
+    def report(self, c: Column, extras: dict[str, Any] | None) -> VideoReport:
+        """What was decoded for ``c``, with the round-trip error demo measured at export when the
+        frames decoded here are the very ones it measured (same fingerprint)."""
+        decoded = self.decoded.get(c.feature, PixelError())
+        stream = self.streams.get(c.feature)
+        recorded = _recorded_error(((extras or {}).get("videos") or {}).get(c.feature))
+        mean: float | None = None
+        peak: int | None = None
+        measured = "no source frames to compare with (not exported by demo)"
+        if recorded is not None:
+            mean, peak, frames, crc = recorded
+            if (frames, crc) == (decoded.frames, decoded.crc32):
+                measured = "decoded frames identical to those demo measured against the source store at export"
+            else:
+                measured = "measured at export; the frames decoded here differ from those (another FFmpeg build?)"
+        return VideoReport(c.key, c.feature, stream.codec if stream else "?", stream.pix_fmt if stream else None,
+                           decoded.frames, len(self.files.get(c.feature, ())), mean, peak, measured)
+
+
+def _recorded_error(value: Any) -> tuple[float, int, int, int] | None:
+    """(mean, max, frames, crc32) from info.json's record of an export's video, if well formed."""
+    if not isinstance(value, dict):
+        return None
+    fields = (value.get("mean_abs_error"), value.get("max_abs_error"), value.get("frames"), value.get("decoded_crc32"))
+    if not isinstance(fields[0], (int, float)) or not all(isinstance(f, int) for f in fields[1:]):
+        return None
+    return float(fields[0]), int(fields[1]), int(fields[2]), int(fields[3])
+
+
 def _concat(where: Path, tables: list[pa.Table]) -> pa.Table:
     try:
         return pa.concat_tables(tables, promote_options="permissive")
@@ -884,7 +1103,7 @@ def _concat(where: Path, tables: list[pa.Table]) -> pa.Table:
         raise DemoError(where, f"data files do not agree ({first_line(exc)})") from None
 
 
-COLUMN_KINDS = ("state", "image", "array")
+COLUMN_KINDS = ("state", "image", "video", "array")
 
 
 def _own_plan(extras: dict[str, Any], info_path: Path) -> tuple[list[Column], StoreMeta]:
@@ -900,6 +1119,8 @@ def _own_plan(extras: dict[str, Any], info_path: Path) -> tuple[list[Column], St
         check_feature(c.key, c.shape, c.dtype, info_path)
         if c.kind not in COLUMN_KINDS or c.key not in meta.features or not 0 <= c.start <= c.stop <= MAX_EPISODE_FRAMES:
             raise DemoError(info_path, f"malformed '{EXTRA_KEY}' column {c.key!r}")
+        if c.kind == "video" and unencodable(c.shape) is not None:
+            raise DemoError(info_path, f"'{EXTRA_KEY}' column {c.key!r}: {unencodable(c.shape)}")
     if {c.key for c in columns} != set(meta.features):
         raise DemoError(info_path, f"'{EXTRA_KEY}' columns do not match its features")
     return columns, meta

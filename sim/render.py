@@ -53,11 +53,17 @@ def parse_cameras(cameras: Sequence[Any]) -> "CameraSet":
 
 
 class CameraSet:
-    """Renderers for the requested cameras; ``specs`` holds (name, height, width)."""
+    """Renderers for the requested cameras; ``specs`` holds (name, height, width).
+
+    Cameras of one size share a renderer. Per frame each camera costs ``update_scene`` + ``render``
+    and nothing else (``demo bench render`` holds collection to that): the ``MjvCamera`` of each
+    camera is made once at :meth:`open`, not looked up by name every frame.
+    """
 
     def __init__(self, specs: list[tuple[str, int, int]]):
         self.specs = specs
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self._views: list[tuple[str, mujoco.Renderer, mujoco.MjvCamera]] = []  # (obs key, renderer, camera)
 
     def max_size(self) -> tuple[int, int]:
         """(width, height) the offscreen buffer must hold."""
@@ -66,24 +72,30 @@ class CameraSet:
     def open(self, model: mujoco.MjModel) -> None:
         if self.specs:
             _headless_gl()
-        for _, h, w in self.specs:
+        self._views.clear()
+        for name, h, w in self.specs:
             if (h, w) not in self._renderers:
                 try:
                     self._renderers[(h, w)] = mujoco.Renderer(model, height=h, width=w)
                 except Exception as exc:  # no GL context: say how to get one
                     self.close()
                     raise DemoError("cameras", f"cannot render ({exc}); set MUJOCO_GL=egl for headless rendering") from None
+            camera = mujoco.MjvCamera()
+            camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+            camera.fixedcamid = model.camera(name).id
+            self._views.append((f"obs.image_{name}", self._renderers[(h, w)], camera))
 
     def render(self, data: mujoco.MjData, out: dict[str, np.ndarray]) -> None:
-        for name, h, w in self.specs:
-            r = self._renderers[(h, w)]
-            r.update_scene(data, camera=name)
-            out[f"obs.image_{name}"] = r.render()
+        """Each camera's image of ``data`` into ``out[obs.image_<name>]`` (a new uint8 [H, W, 3] array)."""
+        for key, renderer, camera in self._views:
+            renderer.update_scene(data, camera=camera)
+            out[key] = renderer.render()
 
     def close(self) -> None:
         for r in self._renderers.values():
             r.close()
         self._renderers.clear()
+        self._views.clear()
 
 
 def _headless_gl() -> None:

@@ -16,6 +16,15 @@ A robot config is a small TOML file (paths relative to it)::
     ee_site_quat = [1, 0, 0, 0]               #   ... (wxyz)
     gravcomp = true                           # compensate gravity on the robot's bodies (default)
     max_joint_velocity = 2.0                  # rad/s, for the experts' IK (scalar or one per joint)
+    wrist_camera = { pos = [0.05, 0, -0.05], target = [0, 0, 0.12], fovy = 80 }   # the `wrist` camera
+
+``wrist_camera`` places the ``wrist`` camera (``demo collect --camera wrist@WxH``) on the EE site's
+body, in the **EE site frame** (m): ``pos`` its position, then either ``target`` (a point it looks
+at, with the site's +x up in the image) or ``quat`` (wxyz, MuJoCo camera convention: it looks along
+its -z, +y up), and ``fovy`` (vertical field of view, degrees). Keys left out take the defaults
+above (beside the hand, above the TCP, looking past the fingertips; ``quat`` ~ [0.1008, 0.6999,
+0.6999, 0.1008]). ``wrist_camera = "NAME"`` instead renders the MJCF's own camera ``NAME`` as
+``wrist``.
 
 Each arm joint must be a hinge or slide joint driven by a position-like actuator (``ctrl`` = joint
 target, e.g. MJCF ``<position>`` or Menagerie's ``<general>`` with ``biasprm="0 -kp -kv"``). The
@@ -49,13 +58,35 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError, one_line
+from demo.sim.geometry import lookat_quat
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 BUILTIN_CONFIG = ASSETS / "panda.toml"
 
 _REQUIRED = ("mjcf", "arm_joints", "gripper_actuator", "gripper_range", "ee_site", "base_body", "home_key")
 _HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-_OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity")
+_OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera")
+
+
+@dataclass(frozen=True)
+class WristCamera:
+    """Where the ``wrist`` camera sits, in the EE site frame: ``pos`` (m), ``quat`` (wxyz, looking
+    along its -z with +y up, MuJoCo's camera convention) and ``fovy`` (vertical field of view, deg)."""
+
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float]
+    fovy: float
+
+
+_WRIST_POS, _WRIST_TARGET, _WRIST_FOVY = (0.05, 0.0, -0.05), (0.0, 0.0, 0.12), 80.0
+_WRIST_UP = np.array([1.0, 0.0, 0.0])  # the site's +x is "up" in the wrist image
+
+
+def _looking_at(pos: tuple[float, ...], target: tuple[float, ...]) -> tuple[float, float, float, float]:
+    return tuple(float(v) for v in lookat_quat(np.array(pos), np.array(target), up=_WRIST_UP))  # type: ignore[return-value]
+
+
+DEFAULT_WRIST_CAMERA = WristCamera(_WRIST_POS, _looking_at(_WRIST_POS, _WRIST_TARGET), _WRIST_FOVY)
 
 
 @dataclass(frozen=True)
@@ -76,6 +107,7 @@ class RobotConfig:
     ee_site_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     gravcomp: bool = True
     max_joint_velocity: tuple[float, ...] = ()
+    wrist_camera: WristCamera | str = DEFAULT_WRIST_CAMERA  # or the name of a camera in the MJCF
     home_qpos: dict[str, float] = field(default_factory=dict, compare=False)
     home_gripper: float = 0.0  # normalised closedness at home (0 open .. 1 closed)
 
@@ -181,8 +213,40 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         ee_site_quat=_floats(where, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
         gravcomp=bool(raw.get("gravcomp", True)),
         max_joint_velocity=vmax,
+        wrist_camera=_wrist_camera(where, raw.get("wrist_camera")),
     )
     return _validated(robot)
+
+
+def _wrist_camera(where: Path, value: Any) -> WristCamera | str:
+    """The ``wrist_camera`` key: a camera name in the MJCF, or a table of pos/target|quat/fovy."""
+    if value is None:
+        return DEFAULT_WRIST_CAMERA
+    if isinstance(value, str):
+        if not value:
+            raise DemoError(where, "'wrist_camera' must name a camera in the MJCF, or be a table of pos, target|quat, fovy")
+        return value
+    if not isinstance(value, dict):
+        raise DemoError(where, f"'wrist_camera' must be a camera name or a table of pos, target|quat, fovy, got {value!r}")
+    unknown = sorted(set(value) - {"pos", "target", "quat", "fovy"})
+    if unknown:
+        raise DemoError(where, f"unknown 'wrist_camera' key(s): {', '.join(unknown)} (known: pos, target, quat, fovy)")
+    if "target" in value and "quat" in value:
+        raise DemoError(where, "'wrist_camera' takes target or quat, not both")
+    pos = _floats(where, "wrist_camera.pos", value.get("pos", _WRIST_POS), 3)
+    if "quat" in value:
+        quat = _floats(where, "wrist_camera.quat", value["quat"], 4)
+        if np.linalg.norm(quat) < 1e-6:  # kept as given otherwise: MuJoCo normalises it, as in MJCF
+            raise DemoError(where, f"'wrist_camera.quat' must be a non-zero quaternion (wxyz), got {value['quat']!r}")
+    else:
+        target = _floats(where, "wrist_camera.target", value.get("target", _WRIST_TARGET), 3)
+        if np.linalg.norm(np.subtract(target, pos)) < 1e-6:
+            raise DemoError(where, "'wrist_camera.target' must differ from its pos")
+        quat = _looking_at(pos, target)
+    (fovy,) = _floats(where, "wrist_camera.fovy", value.get("fovy", _WRIST_FOVY), 1)
+    if not 0.0 < fovy < 180.0:
+        raise DemoError(where, f"'wrist_camera.fovy' must be in (0, 180) degrees, got {fovy:g}")
+    return WristCamera(pos, quat, fovy)  # type: ignore[arg-type]
 
 
 def config_keys(robot: RobotConfig, mjcf: str) -> dict[str, Any]:
@@ -203,6 +267,9 @@ def config_keys(robot: RobotConfig, mjcf: str) -> dict[str, Any]:
     }
     if robot.ee_site_body:
         keys["ee_site_body"] = robot.ee_site_body
+    if robot.wrist_camera != DEFAULT_WRIST_CAMERA:  # records of robots without the key stay as they were
+        cam = robot.wrist_camera
+        keys["wrist_camera"] = cam if isinstance(cam, str) else {"pos": list(cam.pos), "quat": list(cam.quat), "fovy": cam.fovy}
     return keys
 
 
@@ -232,6 +299,11 @@ def _validated(robot: RobotConfig) -> RobotConfig:
     need(mujoco.mjtObj.mjOBJ_SITE, robot.ee_site, "ee site")
     need(mujoco.mjtObj.mjOBJ_BODY, robot.base_body, "base body")
     key = need(mujoco.mjtObj.mjOBJ_KEY, robot.home_key, "home keyframe")
+    if isinstance(robot.wrist_camera, str):
+        need(mujoco.mjtObj.mjOBJ_CAMERA, robot.wrist_camera, "wrist_camera")
+    if robot.wrist_camera != "wrist" and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "wrist") >= 0:
+        raise DemoError(where, f"{robot.mjcf_path.name} has a camera named 'wrist' that wrist_camera does not name: "
+                               "set wrist_camera = \"wrist\" to render it as the wrist camera, or rename it")
 
     home: dict[str, float] = {}
     for j in range(model.njnt):

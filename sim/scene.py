@@ -123,15 +123,17 @@ def scene_spec(robot: RobotConfig, max_camera_size: tuple[int, int] = (0, 0)) ->
 
 
 def _add_wrist_camera(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
+    """The ``wrist`` camera: the robot config's ``wrist_camera`` (a pose in the EE site frame, by
+    default beside the hand looking past the fingertips), or the MJCF camera it names, renamed."""
+    cam = robot.wrist_camera
+    if isinstance(cam, str):  # load_robot checked that the MJCF has it, and no other camera is "wrist"
+        spec.camera(cam).name = "wrist"
+        return
     site = spec.site(robot.ee_site)
-    body = site.parent
     site_quat = np.asarray(site.quat, dtype=np.float64)
-    site_rot = quat_to_mat(site_quat)
-    # Beside the hand, above the TCP, looking past the fingertips along the approach axis (+z).
-    eye, target = np.array([0.05, 0.0, -0.05]), np.array([0.0, 0.0, 0.12])
-    local = lookat_quat(eye, target, up=np.array([1.0, 0.0, 0.0]))
-    pos = np.asarray(site.pos, dtype=np.float64) + site_rot @ eye
-    body.add_camera(name="wrist", pos=pos.tolist(), quat=quat_mul(site_quat, local).tolist(), fovy=80.0)
+    pos = np.asarray(site.pos, dtype=np.float64) + quat_to_mat(site_quat) @ np.asarray(cam.pos)
+    site.parent.add_camera(name="wrist", pos=pos.tolist(), quat=quat_mul(site_quat, np.asarray(cam.quat)).tolist(),
+                           fovy=cam.fovy)
 
 
 def ik_spec(spec: mujoco.MjSpec, arm_joints: Sequence[str]) -> mujoco.MjSpec:

@@ -61,6 +61,7 @@ from zarr.core.sync import sync
 from demo.errors import DemoError
 from demo.store import episode_table, swap
 from demo.store.chunk_writer import RowWriter
+from demo.store.image_bytes import camera_bytes
 from demo.store.robot_files import ROBOT_DIR, copy_robot_files
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
 from demo.store.writer_lock import WriterLock
@@ -657,6 +658,8 @@ class EpisodeStore:
             "sources": counts("source") if self.num_episodes else {},
             "operators": counts("operator") if self.num_episodes else {},
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
+            "camera_bytes": camera_bytes({k: (self.array(k), self._dir / "data" / k) for k in self.meta.features
+                                          if k.startswith(IMAGE_PREFIX)}, self.num_frames),
             "provenance": self.meta.provenance,
         }
 

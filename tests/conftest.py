@@ -33,7 +33,6 @@ def synthetic_store():
                 "obs.joint_pos": FeatureSpec((2,), "float32"),
                 "obs.joint_vel": FeatureSpec((2,), "float32"),
                 "obs.object_pos": FeatureSpec((1, 3), "float32"),
-                "obs.image_front": FeatureSpec((4, 4, 3), "uint8"),
             },
             action=ActionSpec("joint_pos", ("j0.target", "j1.target", "gripper"), ("rad", "rad", "1")),
             robot={"name": "synthetic", "config": "builtin"},
@@ -49,7 +48,7 @@ def synthetic_store():
                 action = np.concatenate([q + delta, grip], axis=1)
                 store.append_episode(
                     {"obs.joint_pos": q, "obs.joint_vel": np.zeros_like(q), "obs.object_pos": obj,
-                     "obs.image_front": np.zeros((length, 4, 4, 3), np.uint8), "action": action},
+                     "action": action},
                     success=i % 6 != 5, seed=100 + i, source="synthetic",
                 )
         return path

@@ -74,6 +74,8 @@ CASES: dict[str, Case] = {
     "bench load": lambda i: (["--frames", "20000", "--seconds", "0.1"], {"samples_per_s", "reference_samples_per_s"}),
     "bench collect": lambda i: (["--task", "reach", "--episodes", "2", "--seconds", "0.1", "--rounds", "1"],
                                 {"one_worker", "two_workers", "ratio_to_physics"}),
+    "bench render": lambda i: (["--task", "reach", "--episodes", "2", "--seconds", "0.05", "--rounds", "1",
+                                "--camera", "front@16x16", "--workers", "0"], {"figure", "reference", "ratio", "cpu_ratio"}),
     "bench convert": lambda i: (["--frames", "2000", "--placo-frames", "200"], {"results", "target_met"}),
     "bench curate": lambda i: (["--frames", "5000"], {"frames_per_s", "reference_frames_per_s"}),
     "bench retarget": lambda i: (["--task", "reach", "--seconds", "0.1", "--ik", "mink"], {"backends"}),

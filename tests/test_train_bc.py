@@ -30,7 +30,7 @@ def test_bc_learns_the_mapping(data: Path, tmp_path: Path, tiny_bc_config) -> No
     used = set(run["data"]["train_episodes"]) | set(run["data"]["val_episodes"])
     assert used == {i for i in range(24) if i % 6 != 5}
     assert len(run["data"]["val_episodes"]) == 2
-    # Default observation: low-dim keys without velocities and images; [1, 3] objects flattened.
+    # Default observation (no cameras): low-dim keys without velocities; [1, 3] objects flattened.
     assert run["policy"]["obs"] == {"keys": ["obs.joint_pos", "obs.object_pos"], "dims": [2, 3], "transforms": ["", ""]}
     assert run["policy"]["relative_actions"] == {"obs_key": "obs.joint_pos", "obs_dims": [0, 1], "action_dims": [0, 1]}
 

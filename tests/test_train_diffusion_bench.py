@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from demo.bench.infer import run as bench_infer
 from demo.bench.multimodal import classify

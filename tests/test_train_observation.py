@@ -22,19 +22,37 @@ FEATURES = {
 }
 
 
-def test_default_keys_drop_velocities_and_images_and_add_offsets() -> None:
-    spec = ObsSpec.from_features(FEATURES)
+STATE_FEATURES = {k: v for k, v in FEATURES.items() if k != "obs.image_front"}
+
+
+def test_default_keys_drop_velocities_and_add_offsets() -> None:
+    spec = ObsSpec.from_features(STATE_FEATURES)
     assert spec.keys == ("obs.joint_pos", "obs.ee_pos", "obs.ee_quat", "obs.object_pos", "obs.object_quat",
                          "obs.object_pos-obs.ee_pos")
     assert spec.dims == (7, 3, 6, 6, 12, 6)
     assert spec.source_keys == ["obs.joint_pos", "obs.ee_pos", "obs.ee_quat", "obs.object_pos", "obs.object_quat"]
     assert "obs.joint_vel" in ObsSpec.from_features(FEATURES, ["all"]).keys
-    with pytest.raises(DemoError, match="not a low-dimensional"):
+
+
+def test_a_store_with_cameras_trains_on_images_and_proprioception_by_default() -> None:
+    spec = ObsSpec.from_features(FEATURES)
+    assert spec.images == ("obs.image_front",) and spec.image_shapes == ((8, 8, 3),)
+    assert spec.keys == ("obs.joint_pos", "obs.ee_pos", "obs.ee_quat")  # no object poses, no velocities
+    assert spec.cameras() == [("front", 8, 8)]
+    assert ObsSpec.from_json(spec.to_json()) == spec
+    # Shorthands: one camera, the robot's sensors, and an object pose asked for by name.
+    chosen = ObsSpec.from_features(FEATURES, ["images", "proprio", "obs.object_pos"])
+    assert chosen.images == ("obs.image_front",) and chosen.keys[-1] == "obs.object_pos"
+    with pytest.raises(DemoError, match="besides its images"):
         ObsSpec.from_features(FEATURES, ["obs.image_front"])
+    with pytest.raises(DemoError, match="has no camera image 'obs.image_wrist'"):
+        ObsSpec.from_features(FEATURES, ["obs.image_wrist", "proprio"])
+    with pytest.raises(DemoError, match="trained on"):
+        spec.check_against({**FEATURES, "obs.image_front": FeatureSpec((16, 16, 3), "uint8")}, "env")
 
 
 def test_vector_and_batch_agree_and_transform() -> None:
-    spec = ObsSpec.from_features(FEATURES)
+    spec = ObsSpec.from_features(STATE_FEATURES)
     rng = np.random.default_rng(0)
     frames = {k: rng.normal(size=(5, *f.shape)).astype(np.float32) for k, f in FEATURES.items() if k != "obs.image_front"}
     batch = spec.concat(frames)
@@ -58,7 +76,7 @@ def test_rot6d_is_the_rotation_matrix_columns() -> None:
 
 
 def test_json_round_trip_and_checks_against_an_environment() -> None:
-    spec = ObsSpec.from_features(FEATURES)
+    spec = ObsSpec.from_features(STATE_FEATURES)
     assert ObsSpec.from_json(spec.to_json()) == spec
     spec.check_against(FEATURES, "env")
     with pytest.raises(DemoError, match="no observation 'obs.object_quat'"):

@@ -59,8 +59,10 @@ def test_bad_options_fail_before_training(data: Path, tmp_path: Path, tiny_bc_co
         train(config(data, tmp_path / "r", chunk=2, execute=3))
     with pytest.raises(DemoError, match="has no observation 'obs.nope'"):
         train(config(data, tmp_path / "r", obs_keys=("obs.nope",)))
-    with pytest.raises(DemoError, match="not a low-dimensional"):
+    with pytest.raises(DemoError, match="has no camera image 'obs.image_front'"):
         train(config(data, tmp_path / "r", obs_keys=("obs.image_front",)))
+    with pytest.raises(DemoError, match="not a low-dimensional"):
+        train(config(data, tmp_path / "r", obs_keys=("obs.joint_pos", "action")))
     with pytest.raises(DemoError, match="unknown policy"):
         train(config(data, tmp_path / "r", algo="transformer"))
     assert not (tmp_path / "r").exists()

@@ -5,7 +5,8 @@ rollouts and by periodic evaluation during training, so that all of them execute
 as it was trained:
 
 - **observation history**: the last ``n_obs`` frames, the first frame repeated at the episode
-  start (the same edge padding as :class:`demo.store.WindowSampler` in training);
+  start (the same edge padding as :class:`demo.store.WindowSampler` in training), camera images
+  alongside the low-dim vector for a visuomotor policy;
 - **chunking**: a query returns ``horizon`` actions, step 0 for the current frame; a new query is
   made every ``execute`` steps (receding horizon);
 - **temporal ensembling** (ACT, Zhao et al. 2023): with ``ensemble = m`` the action for step ``t``
@@ -26,6 +27,7 @@ import numpy as np
 import torch
 
 from demo.train.actions import ActionAdapter
+from demo.train.data import STATE
 from demo.train.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.train.observation import ObsSpec
 from demo.train.policy import Policy
@@ -82,7 +84,8 @@ class PolicyActor:
         self.adapter = adapter
         self.relative = relative
         self.n_obs, self.horizon = policy.spec.n_obs, policy.spec.horizon
-        self.generator = torch.Generator()
+        self.device = next(policy.parameters(), torch.empty(0)).device
+        self.generator = torch.Generator(device=self.device)
         self.queries = 0
         self.reset(0)
 
@@ -91,17 +94,21 @@ class PolicyActor:
         if self.adapter is not None and env is not None:
             self.adapter.reset(env)
         self.history: deque[np.ndarray] = deque(maxlen=self.n_obs)
+        self.images: dict[str, deque[np.ndarray]] = {k: deque(maxlen=self.n_obs) for k in self.obs_spec.images}
         self.chunks: deque[tuple[int, np.ndarray]] = deque()  # (first step, [H, A] raw actions)
         self.t = 0
         self.last_query = -(10**9)
         self.generator.manual_seed(int(seed) & 0x7FFF_FFFF_FFFF_FFFF)
 
     def _query(self, frame: dict[str, np.ndarray]) -> np.ndarray:
-        obs = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
+        state = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
+        obs: torch.Tensor | dict[str, torch.Tensor] = torch.from_numpy(state).to(self.device)
+        if self.images:
+            obs = {STATE: obs, **{k: torch.from_numpy(np.stack(h)[None]).to(self.device) for k, h in self.images.items()}}
         with torch.inference_mode():
-            chunk = self.policy.predict(torch.from_numpy(obs), generator=self.generator)
+            chunk = self.policy.predict(obs, generator=self.generator)
         self.queries += 1
-        actions = self.action_norm.unnormalize(chunk[0].numpy())
+        actions = self.action_norm.unnormalize(chunk[0].float().cpu().numpy())
         if self.relative is not None:
             actions = actions + self.relative.base_frame(frame, actions.shape[1])
         return actions
@@ -111,8 +118,12 @@ class PolicyActor:
         obs = self.obs_spec.vector(frame)
         if not self.history:
             self.history.extend([obs] * self.n_obs)
+            for key, h in self.images.items():
+                h.extend([frame[key]] * self.n_obs)
         else:
             self.history.append(obs)
+            for key, h in self.images.items():
+                h.append(frame[key])
         t = self.t
         if t - self.last_query >= self.execution.execute:
             self.chunks.append((t, self._query(frame)))

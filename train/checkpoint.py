@@ -88,9 +88,13 @@ def policy_record(
     relative: RelativeActions | None = None,
 ) -> dict[str, Any]:
     """The part of run.json that rebuilds the policy."""
+    from demo.train.visuomotor import encoder_record
+
+    encoder = encoder_record(policy)
     return {
         "algo": algo,
         "config": config_to_json(policy.config),
+        **({"encoder": encoder} if encoder else {}),
         "spec": policy.spec.to_json(),
         "obs": obs_spec.to_json(),
         "action": action.to_json(),
@@ -186,22 +190,23 @@ def save_policy(
     replace_atomically(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
 
 
-def load_bundle(run_dir: str | Path) -> PolicyBundle:
-    """Rebuild the policy of a run directory (read-only; never unpickles)."""
+def load_bundle(run_dir: str | Path, device: torch.device | str = "cpu") -> PolicyBundle:
+    """Rebuild the policy of a run directory on ``device`` (read-only; never unpickles)."""
     run_dir = Path(run_dir)
     run = read_run(run_dir)
     rec = run["policy"]
     where = run_dir / RUN_FILE
     try:
-        spec = PolicySpec(**{k: int(v) for k, v in rec["spec"].items()})
+        spec = PolicySpec.from_json(rec["spec"])
         obs_spec = ObsSpec.from_json(rec["obs"])
         action = ActionSpec.from_json(rec["action"])
         execution = ExecConfig.from_json(rec.get("execution") or {})
         config = policy_config(rec["algo"], rec.get("config") or {})
+        encoder = rec.get("encoder")
         relative = RelativeActions.from_json(rec.get("relative_actions"))
         _check_record(obs_spec, spec, action, relative, execution)
         with torch.device("meta"):  # shapes only: a record naming a huge network allocates nothing here
-            shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config).state_dict().items()}
+            shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config, encoder).state_dict().items()}
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RuntimeError) as exc:
         raise DemoError(where, f"malformed policy record ({exc})") from None
     path = run_dir / POLICY_FILE
@@ -217,7 +222,7 @@ def load_bundle(run_dir: str | Path) -> PolicyBundle:
         differ = sorted(k for k in shapes.keys() | stored.keys() if shapes.get(k) != stored.get(k))
         raise DemoError(path, f"does not match the policy in {RUN_FILE} (tensor {differ[0]}: "
                               f"{stored.get(differ[0])} in the file, {shapes.get(differ[0])} in the record)")
-    policy = build_policy(rec["algo"], spec, config)
+    policy = build_policy(rec["algo"], spec, config, encoder)
     try:
         policy.load_state_dict(weights, strict=True)
         obs_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.obs")
@@ -226,7 +231,7 @@ def load_bundle(run_dir: str | Path) -> PolicyBundle:
         raise DemoError(path, f"does not match the policy in {RUN_FILE} ({str(exc).splitlines()[0][:160]})") from None
     if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
         raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
-    policy.eval()
+    policy.to(device).eval()
     return PolicyBundle(rec["algo"], policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
 
 
@@ -237,6 +242,8 @@ def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: 
         raise ValueError("observation keys and dims do not pair up")
     if obs.dim != spec.obs_dim or action.dim != spec.action_dim or min(spec.n_obs, spec.horizon) < 1:
         raise ValueError(f"spec {spec} does not match the observation ({obs.dim}) and action ({action.dim}) sizes")
+    if [(k, h, w) for k, (h, w, _) in zip(obs.images, obs.image_shapes)] != list(spec.images):
+        raise ValueError("the policy's camera images do not match the observation's")
     if relative is not None and (relative.obs_key not in obs.keys or len(relative.obs_dims) != len(relative.action_dims)
                                  or not all(0 <= i < action.dim for i in relative.action_dims)
                                  or not all(0 <= i < obs.dims[obs.keys.index(relative.obs_key)] for i in relative.obs_dims)):

@@ -26,7 +26,7 @@ from typing import Any
 
 from demo.errors import DemoError
 
-# The generic training-loop settings, where the policy says nothing (demo.train.policy.Policy.TRAIN_DEFAULTS).
+# The generic training-loop settings, where the policy says nothing.
 LOOP_DEFAULTS: dict[str, Any] = {
     "steps": 5000,
     "batch_size": 256,
@@ -67,6 +67,13 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
     },
 }
 
+# With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
+# batches; the rest as measured on pick from front + wrist images (README, Results).
+IMAGE_DEFAULTS: dict[str, dict[str, Any]] = {
+    "bc": {"batch_size": 64, "steps": 6000},
+    "diffusion": {"batch_size": 64, "steps": 6000, "n_obs": 1},
+}
+
 # DAgger's learner is BC's policy, single-step by default: a label is the expert's action in one visited
 # state, and a window of them is not the expert's plan from that state (measured: bench compounding).
 DAGGER_DEFAULTS: dict[str, Any] = {"chunk": 1, "ensemble": False}
@@ -80,6 +87,8 @@ class TrainConfig:
     out: str = ""  # run directory
     algo: str = "bc"  # registered policy (demo.train.policy): bc (MLP), diffusion, ...
     policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
+    # Image encoders, for stores with cameras (demo.train.encoders.EncoderConfig fields, e.g. {"backbone": "resnet18"})
+    encoder: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     # ---- tuned per policy (None until resolved)
     steps: int | None = None  # optimiser steps
@@ -110,6 +119,7 @@ class TrainConfig:
     eval_episodes: int = 10
     eval_final: bool = False  # evaluate once more at the end
     robot: str | None = None  # robot config TOML, where the store's recorded robot files cannot be found (--robot)
+    device: str = "auto"  # auto (CUDA, else MPS, else CPU) | cpu | cuda | mps (demo.train.device)
     threads: int = 1  # torch threads (small networks gain little from more; idle threads busy-wait on a shared machine); 0 = torch's default
 
     def given(self) -> dict[str, Any]:
@@ -145,17 +155,37 @@ class TrainConfig:
         d = asdict(self)
         d["obs_keys"] = list(self.obs_keys)
         d["policy"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.policy.items()}
+        if not self.encoder:  # recorded only when set: state runs read as before
+            d.pop("encoder")
         return d
 
 
-def policy_defaults(name: str) -> dict[str, Any]:
-    """The training-loop settings policy ``name`` is trained with unless told otherwise."""
-    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {})}
+def policy_defaults(name: str, images: bool = False) -> dict[str, Any]:
+    """The training-loop settings policy ``name`` is trained with unless told otherwise (``images``:
+    on camera images)."""
+    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
+
+
+def reads_images(data: str | None, obs_keys: tuple[str, ...] = ()) -> bool:
+    """Whether a policy trained on the store ``data`` with ``obs_keys`` reads camera images.
+
+    False where the store cannot be read: the data pipeline then says what is wrong with it."""
+    if not data:
+        return False
+    from demo.store import EpisodeStore
+    from demo.train.observation import ObsSpec
+
+    try:
+        with EpisodeStore.open(data) as store:
+            return bool(ObsSpec.from_features(store.meta.features, obs_keys or None).images)
+    except (DemoError, OSError, ValueError, KeyError, TypeError):
+        return False
 
 
 def for_policy(name: str, **given: Any) -> TrainConfig:
     """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
-    then the policy's ``TRAIN_DEFAULTS``, then :data:`LOOP_DEFAULTS`."""
+    then the policy's defaults (:data:`IMAGE_DEFAULTS` over :data:`POLICY_DEFAULTS` when the data has
+    cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
     from demo.train.policy import policy_class
 
     policy_class(name)  # an unknown policy fails here, naming the known ones
@@ -165,7 +195,8 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     unknown = sorted(set(given) - known)
     if unknown:
         raise TypeError(f"TrainConfig has no field {', '.join(unknown)}")
-    values = {**policy_defaults(name), **given, "algo": name}
+    images = reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
+    values = {**policy_defaults(name, images), **given, "algo": name}
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])
     return TrainConfig(**values)

@@ -158,9 +158,11 @@ def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
 
 
 def make_env_for_store(store: EpisodeStore, task: str | None, robot: str | None = None) -> Any:
-    """The store's task with its robot (``robot``: a config that replaces the recorded one)."""
+    """The store's task with its robot (``robot``: a config that replaces the recorded one), rendering
+    the store's cameras, so that a pixel policy's rollouts are stored like its demonstrations."""
     from demo.sim import make_env
     from demo.sim.robot_record import resolve_robot
+    from demo.train.observation import IMAGE_PREFIX, image_keys
 
     t = store.meta.task or {}
     name = t.get("name")
@@ -169,7 +171,10 @@ def make_env_for_store(store: EpisodeStore, task: str | None, robot: str | None 
     task = task or name
     if not task:
         raise DemoError(store.path, "records no task; pass --task")
-    env = make_env(task, robot=resolve_robot(store.meta.robot, robot, where=store.path), **(t.get("options") or {}))
+    features = store.meta.features
+    cameras = [(k[len(IMAGE_PREFIX):], features[k].shape[1], features[k].shape[0]) for k in image_keys(features)]
+    env = make_env(task, robot=resolve_robot(store.meta.robot, robot, where=store.path), cameras=cameras,
+                   **(t.get("options") or {}))
     if env.action_spec.name != store.meta.action.name or env.action_spec.dim != store.meta.action.dim:
         env.close()
         raise DemoError(

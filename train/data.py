@@ -10,7 +10,9 @@
    are relative, :mod:`demo.train.relative`) and stored with the policy;
 4. **windows**: :class:`Windows` over the normalised arrays gives observation histories
    ``[B, n_obs, D]`` and action chunks ``[B, chunk, A]``, padded at episode edges
-   (:class:`demo.store.WindowSampler`).
+   (:class:`demo.store.WindowSampler`). With cameras, an observation is a dict: the vector under
+   ``"state"`` and each camera's uint8 images ``[B, n_obs, H, W, 3]`` under its key; images stay
+   bytes in memory and become floats in the policy's encoder (:mod:`demo.train.visuomotor`).
 
 Frames may carry a per-frame expert-label flag (:data:`LABEL_KEY`, written by DAgger): windows then
 start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss).
@@ -18,7 +20,7 @@ start at labelled frames only, and chunk steps on unlabelled frames count as pad
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -33,10 +35,29 @@ from demo.train.relative import RelativeActions, default_relative
 
 LABEL_KEY = "info.labelled"  # optional per-frame flag: this frame's action is an expert label
 VALIDATION_WINDOWS = 4096  # windows of the fixed validation batch
+VALIDATION_WINDOWS_IMAGES = 512  # with cameras: a validation pass stays a few seconds of encoder time
 MIN_TRAIN_EPISODES = 2  # below this a policy sees one trajectory: refused, not trained silently
 
 _UNIT = MinMaxNormalizer.from_limits(np.full(1, -1.0, np.float32), np.ones(1, np.float32))  # placeholder until fitted
-Batch = tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # obs [B, n_obs, D], action [B, H, A], action_pad [B, H]
+STATE = "state"  # the low-dim vector's entry in an observation dict (with cameras)
+Observation = torch.Tensor | dict[str, torch.Tensor]  # [B, n_obs, D], or {"state": that, camera key: uint8 [B, n_obs, H, W, 3]}
+Batch = tuple[Observation, torch.Tensor, torch.Tensor]  # obs, action [B, H, A], action_pad [B, H]
+
+
+def batch_slice(batch: Batch, start: int, stop: int) -> Batch:
+    """Windows ``start:stop`` of a batch."""
+    obs, action, pad = batch
+    part = {k: v[start:stop] for k, v in obs.items()} if isinstance(obs, dict) else obs[start:stop]
+    return part, action[start:stop], pad[start:stop]
+
+
+def batch_to(batch: Batch, device: torch.device) -> Batch:
+    """The batch on ``device`` (a no-op on the CPU)."""
+    if device.type == "cpu":
+        return batch
+    obs, action, pad = batch
+    moved = {k: v.to(device, non_blocking=True) for k, v in obs.items()} if isinstance(obs, dict) else obs.to(device, non_blocking=True)
+    return moved, action.to(device, non_blocking=True), pad.to(device, non_blocking=True)
 
 
 @dataclass
@@ -58,7 +79,8 @@ class TrainingData:
     obs_norm: MinMaxNormalizer
     action_norm: MinMaxNormalizer
     relative: RelativeActions | None
-    spec: PolicySpec  # obs_dim, action_dim, n_obs, horizon (= chunk)
+    spec: PolicySpec  # obs_dim, action_dim, n_obs, horizon (= chunk), cameras
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # camera key -> [N, H, W, 3] uint8; none = state only
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -72,13 +94,13 @@ class TrainingData:
 
     def validation_batch(self, seed: int) -> Batch | None:
         """The fixed validation windows (up to :data:`VALIDATION_WINDOWS`), or None without any."""
-        return self.windows(self.val_episodes).fixed(VALIDATION_WINDOWS, seed)
+        return self.windows(self.val_episodes).fixed(VALIDATION_WINDOWS_IMAGES if self.images else VALIDATION_WINDOWS, seed)
 
     def reload(self, store: EpisodeStore, train_episodes: np.ndarray, val_episodes: np.ndarray) -> "TrainingData":
         """The store's frames now (it may have grown) with another split and *these* normalisers."""
         raw = _load_arrays(store, self.obs_spec, self.relative)
-        return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), action=raw[1], base=raw[2], ends=raw[3],
-                       labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes)
+        return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
+                       ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes)
 
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
@@ -91,7 +113,7 @@ def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None =
     obs_spec = ObsSpec.from_features(store.meta.features, config.obs_keys or None, str(store.path))
     relative = default_relative(store.meta) if config.relative_actions else None
     train_eps, val_eps = split if split is not None else split_episodes(store, config, among)
-    obs, action, base, ends, labelled = _load_arrays(store, obs_spec, relative)
+    obs, action, base, ends, labelled, images = _load_arrays(store, obs_spec, relative)
     frames = frame_indices(ends, train_eps)
     if labelled is not None:
         frames = frames[labelled[frames]]
@@ -101,9 +123,10 @@ def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None =
                                     f"labelled frame(s); the minimum is {MIN_TRAIN_EPISODES} episodes and one window "
                                     f"of {window} frames (n_obs {config.n_obs} + chunk {config.chunk} - 1)")
     obs_norm = MinMaxNormalizer.fit(obs[frames])
-    spec = PolicySpec(obs_spec.dim, store.meta.action.dim, config.n_obs, config.chunk)
+    cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
+    spec = PolicySpec(obs_spec.dim, store.meta.action.dim, config.n_obs, config.chunk, cameras)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
-                        obs_norm, _UNIT, relative, spec)
+                        obs_norm, _UNIT, relative, spec, images)
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
 
@@ -138,15 +161,16 @@ def frame_indices(ends: np.ndarray, episodes: np.ndarray) -> np.ndarray:
 
 
 def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None):
-    """Concatenated observations, actions, relative-action bases, episode ends, label flags."""
-    keys = [*obs_spec.source_keys, "action"] + ([LABEL_KEY] if LABEL_KEY in store.meta.features else [])
+    """Concatenated observations, actions, relative-action bases, episode ends, label flags, images."""
+    keys = [*obs_spec.source_keys, *obs_spec.images, "action"] + ([LABEL_KEY] if LABEL_KEY in store.meta.features else [])
     if relative is not None and relative.obs_key not in keys:
         keys.append(relative.obs_key)
     arrays, ends = store.load(keys)
     labelled = arrays[LABEL_KEY].reshape(-1).astype(bool) if LABEL_KEY in arrays else None
     action = np.asarray(arrays["action"], dtype=np.float32)
     base = relative.base(arrays, action.shape[1]) if relative is not None else None
-    return obs_spec.concat(arrays), action, base, ends, labelled
+    images = {k: np.ascontiguousarray(arrays[k], dtype=np.uint8) for k in obs_spec.images}
+    return obs_spec.concat(arrays), action, base, ends, labelled, images
 
 
 def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:
@@ -173,8 +197,9 @@ class Windows:
         partial = data.labelled is not None and not data.labelled.all()
         # The label flag rides along as an extra action column, so one gather serves both.
         action = np.concatenate([data.action, data.labelled[:, None].astype(np.float32)], axis=1) if partial else data.action
-        self.sampler = WindowSampler({"obs": data.obs, "action": action}, data.ends, ["obs"], "action",
-                                     data.spec.n_obs, data.spec.horizon, episodes=episodes)
+        self.cameras = list(data.images)
+        self.sampler = WindowSampler({"obs": data.obs, **data.images, "action": action}, data.ends, ["obs", *self.cameras],
+                                     "action", data.spec.n_obs, data.spec.horizon, episodes=episodes)
         if data.labelled is not None:
             self.sampler.indices = self.sampler.indices[data.labelled[self.sampler.indices]]
         self.partial = partial
@@ -184,23 +209,26 @@ class Windows:
     def __len__(self) -> int:
         return len(self.sampler)
 
-    def _window(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _window(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         b = self.sampler.get(t)
         action, pad = b.action, b.action_pad
         if self.partial:
             action, pad = action[..., :-1], pad | (action[..., -1] < 0.5)
         if self.base is not None:
             action = action - self.base[b.index][:, None, :]
-        return b.obs["obs"], action, pad
+        return b.obs, action, pad
 
     def actions(self, t: np.ndarray) -> np.ndarray:
         """``[B, H, A]`` raw actions of the windows at ``t``, relative to their query frame if so."""
         return self._window(t)[1]
 
     def get(self, t: np.ndarray) -> Batch:
-        obs, action, pad = self._window(t)
+        frames, action, pad = self._window(t)
         action = self.norm.normalize(action) if self.norm is not None else action
-        return torch.from_numpy(obs), torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
+        obs: Observation = torch.from_numpy(frames["obs"])
+        if self.cameras:
+            obs = {STATE: obs, **{k: torch.from_numpy(frames[k]) for k in self.cameras}}
+        return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         return self.get(self.sampler.indices[rng.integers(0, len(self.sampler.indices), size=batch_size)])

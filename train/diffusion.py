@@ -176,7 +176,7 @@ class DiffusionPolicy(Policy):
         plan = self._inference_plan(b)
         scheduler, timesteps, step_film, denoise = plan["scheduler"], plan["timesteps"], plan["step_film"], plan["denoise"]
         film_obs = self.net.film_from_obs(obs.reshape(b, -1))  # once per chunk
-        x = torch.randn((b, self.spec.horizon, self.spec.action_dim), generator=generator, dtype=obs.dtype)
+        x = torch.randn((b, self.spec.horizon, self.spec.action_dim), generator=generator, dtype=obs.dtype, device=obs.device)
         return scheduler.sample(lambda x, t, k: denoise(x, film_obs + step_film[k]), x, sampler=c.sampler,
                                 generator=generator, timesteps=timesteps)
 
@@ -193,7 +193,7 @@ class DiffusionPolicy(Policy):
         scheduler = self._scheduler()
         timesteps = scheduler.timesteps(c.inference_steps, c.sampler, c.spacing)
         with torch.no_grad():
-            step_film = self.net.film_from_step(torch.tensor(timesteps))  # [K, film_dim]
+            step_film = self.net.film_from_step(torch.tensor(timesteps, device=self._device()))  # [K, film_dim]
         denoise: Any = self.net.denoise
         if c.jit and not self.training:
             denoise = self._traced(batch)
@@ -201,14 +201,17 @@ class DiffusionPolicy(Policy):
         return self._fast
 
     def _traced(self, batch: int) -> Any:
-        x = torch.zeros(batch, self.spec.horizon, self.spec.action_dim)
-        film = torch.zeros(batch, self.net.film_dim)
+        x = torch.zeros(batch, self.spec.horizon, self.spec.action_dim, device=self._device())
+        film = torch.zeros(batch, self.net.film_dim, device=self._device())
         # TorchScript is deprecated in favour of torch.compile, but compiling takes minutes on 2
         # cores and tracing ~1 s; the traced graph runs the same kernels as eager, without Python.
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore")
             traced = torch.jit.trace(_Denoiser(self.net).eval(), (x, film), check_trace=False)
             return torch.jit.optimize_for_inference(torch.jit.freeze(traced))
+
+    def _device(self) -> torch.device:
+        return next(self.parameters()).device
 
     def _scheduler(self) -> NoiseScheduler:
         """:meth:`scheduler`, rebuilt only when its settings change."""

@@ -37,6 +37,7 @@ from demo.sim.rollout import StepCommand, rollout
 from demo.train.actions import make_action_adapter
 from demo.train.actor import ExecConfig, PolicyActor
 from demo.train.checkpoint import PolicyBundle, load_bundle
+from demo.train.device import resolve_device
 
 Z95 = 1.959963984540054
 
@@ -107,10 +108,11 @@ def resolve_target(
 
 
 def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: str | None, cameras: Sequence[Any] = ()) -> Any:
+    """The task's environment for ``bundle``, rendering the cameras its policy reads (and ``cameras``)."""
     from demo.sim import make_env
 
     where = str(bundle.path or "run")
-    env = make_env(task, robot=robot, cameras=cameras, **options)
+    env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
     trained_robot = bundle.robot.get("name")
     if trained_robot and env.robot.name != trained_robot:
         env.close()
@@ -198,9 +200,10 @@ class single_thread:
 _worker: dict[str, Any] = {}
 
 
-def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any]) -> None:
+def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any],
+                 device: str) -> None:
     torch.set_num_threads(1)
-    bundle = load_bundle(run)
+    bundle = load_bundle(run, device)
     env = make_eval_env(bundle, task, options, robot)
     _worker["env"] = env
     _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
@@ -213,10 +216,10 @@ def _worker_run(job: tuple[int, int, bool]) -> EpisodeOutcome:
 
 def _run_parallel(
     run: Path, task: str, options: dict[str, Any], robot: str | None, execution: ExecConfig,
-    jobs: list[tuple[int, int, bool]], workers: int,
+    jobs: list[tuple[int, int, bool]], workers: int, device: str = "cpu",
 ) -> Iterator[EpisodeOutcome]:
-    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state
-    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(str(run), task, options, robot, execution.to_json()))
+    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state (nor CUDA)
+    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(str(run), task, options, robot, execution.to_json(), device))
     try:
         yield from pool.imap(_worker_run, jobs, chunksize=1)
         pool.close()
@@ -240,6 +243,7 @@ class EvalConfig:
     video: str | None = None  # .gif (or .mp4 where an encoder is installed)
     video_episodes: int = 4
     video_size: int = 128
+    device: str = "auto"  # where the policy runs (demo.train.device); the simulation is always on the CPU
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -265,7 +269,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     if config.workers < 1:
         raise DemoError("--workers", "must be at least 1")
     run = Path(config.run)
-    bundle = load_bundle(run)
+    device = resolve_device(config.device)
+    bundle = load_bundle(run, device)
     task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
     execution = execution_for(bundle, config.execute, config.ensemble)
     seeds = eval_seeds(config.seed, config.episodes)
@@ -285,7 +290,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         if config.workers == 1:
             episodes = iter_episodes_inline(bundle, env, jobs, execution)
         else:
-            episodes = _run_parallel(run, task, options, robot, execution, jobs, config.workers)
+            episodes = _run_parallel(run, task, options, robot, execution, jobs, config.workers, str(device))
         for outcome in episodes:
             done(outcome)
     finally:
@@ -305,6 +310,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
             "execution": execution.to_json(),
             "workers": config.workers,
+            "device": str(device),
             "seconds": seconds,
             "steps_per_s": sum(o.length for o in outcomes) / max(seconds, 1e-9),
             **config.extra,

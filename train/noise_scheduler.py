@@ -130,7 +130,7 @@ class NoiseScheduler:
         if t_prev < 0:
             return mean
         var = max(beta * (1.0 - ab_prev) / (1.0 - ab_t), 1e-20)
-        noise = torch.randn(x_t.shape, generator=generator, dtype=x_t.dtype)
+        noise = torch.randn(x_t.shape, generator=generator, dtype=x_t.dtype, device=x_t.device)
         return mean + math.sqrt(var) * noise
 
     def sample(

@@ -2,8 +2,14 @@
 
 The order of ``keys`` is the order of the concatenation, recorded in the run so that evaluation
 builds exactly the vector the policy was trained on. A key of any float shape is flattened in C
-order (``obs.object_pos`` ``[K, 3]`` becomes ``3K`` values). Images (``obs.image_*``, uint8
-``[H, W, 3]``) are not low-dimensional and are never picked.
+order (``obs.object_pos`` ``[K, 3]`` becomes ``3K`` values).
+
+Camera images (``obs.image_*``, uint8 ``[H, W, 3]``) are not part of the vector: they are listed in
+``images`` and reach the policy as they are, for its image encoders (:mod:`demo.train.visuomotor`).
+A store with cameras trains by default on its images and the robot's proprioception
+(:data:`PROPRIO_PREFIXES`: joint positions, gripper, end-effector pose), never on object poses,
+which a real robot has no sensor for; ``--obs-keys`` names the keys to use instead, with the
+shorthands ``images`` (every camera), ``proprio`` and ``all`` (every low-dim key).
 
 Quaternions (keys ending in ``_quat`` whose last axis is 4, wxyz) enter as the first two columns
 of their rotation matrix ("6D", Zhou et al. 2019), ``[K, 4]`` -> ``6K`` values. A quaternion and
@@ -28,8 +34,11 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.store import FeatureSpec
+from demo.store.episode_store import IMAGE_PREFIX
 
 MAX_LOW_DIM = 4096  # values per frame; anything larger is not a state vector
+# The robot's own sensors: what a real arm measures without a camera (velocities are left out by default).
+PROPRIO_PREFIXES = ("obs.joint_", "obs.gripper", "obs.ee_")
 QUAT_TO_ROT6D = "quat_to_rot6d"
 DIFFERENCE = "difference"
 
@@ -38,7 +47,7 @@ def is_low_dim(key: str, spec: FeatureSpec) -> bool:
     size = int(np.prod(spec.shape, dtype=np.int64)) if spec.shape else 1
     return (
         key.startswith("obs.")
-        and not key.startswith("obs.image_")
+        and not key.startswith(IMAGE_PREFIX)
         and np.dtype(spec.dtype).kind == "f"
         and size <= MAX_LOW_DIM
     )
@@ -52,14 +61,32 @@ def low_dim_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
 REFERENCE_KEY = "obs.ee_pos"
 
 
+def is_image(key: str, spec: FeatureSpec) -> bool:
+    return key.startswith(IMAGE_PREFIX) and np.dtype(spec.dtype) == np.uint8 and len(spec.shape) == 3 and spec.shape[2] == 3
+
+
+def image_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
+    """Every camera image ``obs.image_*`` (uint8 [H, W, 3]), in store order."""
+    return [k for k, spec in features.items() if is_image(k, spec)]
+
+
+def proprio_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
+    """The robot's own low-dim keys (joints, gripper, end-effector), without velocities."""
+    return [k for k in low_dim_keys(features) if k.startswith(PROPRIO_PREFIXES) and not k.endswith("_vel")]
+
+
 def default_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
-    """The low-dim keys without velocities (``*_vel``), plus positions relative to the end-effector.
+    """Images + proprioception for a store with cameras; otherwise the state keys below.
+
+    The state keys: the low-dim keys without velocities (``*_vel``), plus positions relative to the end-effector.
 
     Velocities let a cloned policy read the expert's last action off the state (the arm moves the
     way it was just told to): the "copycat" shortcut of causal confusion (de Haan et al. 2019,
     Wen et al. 2020). It fits the demonstrations and fails in closed loop: on ``pick`` (100 demos,
     MLP) adding ``obs.joint_vel`` took rollout success from 43% to 17%. ``--obs-keys all`` keeps them.
     """
+    if image_keys(features):
+        return image_keys(features) + proprio_keys(features)
     keys = [k for k in low_dim_keys(features) if not k.endswith("_vel")] or low_dim_keys(features)
     ref = features.get(REFERENCE_KEY)
     if ref is not None and ref.shape == (3,):
@@ -87,11 +114,28 @@ def quat_to_rot6d(q: np.ndarray) -> np.ndarray:
     return np.stack(col0 + col1, axis=-1).astype(np.float32)
 
 
+SHORTHANDS = {"all": low_dim_keys, "images": image_keys, "proprio": proprio_keys}
+
+
+def expand_keys(features: Mapping[str, FeatureSpec], keys: Sequence[str]) -> list[str]:
+    """``keys`` with the shorthands ``all``, ``images``, ``proprio`` replaced by what they name here."""
+    out: list[str] = []
+    for key in keys:
+        for k in SHORTHANDS[key](features) if key in SHORTHANDS else [key]:
+            if k not in out:
+                out.append(k)
+    return out
+
+
 @dataclass(frozen=True)
 class ObsSpec:
+    """What a policy observes: low-dim ``keys`` concatenated into one vector, and camera ``images``."""
+
     keys: tuple[str, ...]
     dims: tuple[int, ...]  # values each key contributes (after its transform)
     transforms: tuple[str, ...] = ()  # per key: "" or QUAT_TO_ROT6D
+    images: tuple[str, ...] = ()  # camera keys obs.image_<name>, uint8
+    image_shapes: tuple[tuple[int, int, int], ...] = ()  # per camera [H, W, 3]
 
     def __post_init__(self) -> None:
         if not self.transforms:
@@ -100,6 +144,10 @@ class ObsSpec:
     @property
     def dim(self) -> int:
         return int(sum(self.dims))
+
+    def cameras(self) -> list[tuple[str, int, int]]:
+        """The cameras an environment must render for this policy: (name, width, height)."""
+        return [(k[len(IMAGE_PREFIX):], w, h) for k, (h, w, _) in zip(self.images, self.image_shapes)]
 
     @property
     def source_keys(self) -> list[str]:
@@ -115,14 +163,16 @@ class ObsSpec:
     def from_features(
         cls, features: Mapping[str, FeatureSpec], keys: Sequence[str] | None = None, where: str = "store"
     ) -> "ObsSpec":
-        if not keys:
-            chosen = default_keys(features)
-        elif list(keys) == ["all"]:
-            chosen = low_dim_keys(features)
-        else:
-            chosen = list(keys)
+        chosen = default_keys(features) if not keys else expand_keys(features, keys)
+        images = [k for k in chosen if k.startswith(IMAGE_PREFIX)]
+        chosen = [k for k in chosen if not k.startswith(IMAGE_PREFIX)]
+        for key in images:
+            if key not in features or not is_image(key, features[key]):
+                known = ", ".join(image_keys(features)) or "none"
+                raise DemoError(where, f"has no camera image {key!r} (cameras: {known})")
         if not chosen:
-            raise DemoError(where, "has no low-dimensional obs.* features to train on")
+            what = "besides its images (add e.g. obs.joint_pos)" if images else "to train on"
+            raise DemoError(where, f"has no low-dimensional obs.* features {what}")
         dims, transforms = [], []
         for key in chosen:
             pair = _difference(key)
@@ -149,7 +199,8 @@ class ObsSpec:
             else:
                 dims.append(size)
                 transforms.append("")
-        return cls(tuple(chosen), tuple(dims), tuple(transforms))
+        shapes = tuple(tuple(int(x) for x in features[k].shape) for k in images)
+        return cls(tuple(chosen), tuple(dims), tuple(transforms), tuple(images), shapes)  # type: ignore[arg-type]
 
     def _part(self, data: Mapping[str, np.ndarray], key: str, d: int, transform: str, n: int | None) -> np.ndarray:
         if transform == DIFFERENCE:
@@ -176,6 +227,11 @@ class ObsSpec:
 
     def check_against(self, features: Mapping[str, FeatureSpec], where: str) -> None:
         """Refuse an environment/store whose observations differ from the ones trained on."""
+        for key, shape in zip(self.images, self.image_shapes):
+            if key not in features:
+                raise DemoError(where, f"has no camera image {key!r}, which the policy was trained on")
+            if tuple(features[key].shape) != tuple(shape):
+                raise DemoError(where, f"camera image {key} is {tuple(features[key].shape)}; the policy was trained on {tuple(shape)}")
         for key, d, t in zip(self.keys, self.dims, self.transforms):
             if t == DIFFERENCE:
                 pair = _difference(key) or (key,)  # not "a-b": then it names a missing observation
@@ -193,7 +249,10 @@ class ObsSpec:
                 raise DemoError(where, f"observation {key} has a different size ({shape}) from the one the policy was trained on")
 
     def to_json(self) -> dict[str, Any]:
-        return {"keys": list(self.keys), "dims": list(self.dims), "transforms": list(self.transforms)}
+        d: dict[str, Any] = {"keys": list(self.keys), "dims": list(self.dims), "transforms": list(self.transforms)}
+        if self.images:  # recorded only when set: state runs read as before
+            d["images"] = {k: list(s) for k, s in zip(self.images, self.image_shapes)}
+        return d
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> "ObsSpec":
@@ -201,4 +260,10 @@ class ObsSpec:
         for t in transforms:
             if t not in ("", QUAT_TO_ROT6D, DIFFERENCE):
                 raise ValueError(f"unknown observation transform {t!r}")
-        return cls(tuple(d["keys"]), tuple(int(x) for x in d["dims"]), transforms)
+        images = d.get("images") or {}
+        shapes = tuple(tuple(int(x) for x in s) for s in images.values())
+        if any(len(s) != 3 or s[2] != 3 or not (1 <= s[0] <= 4096 and 1 <= s[1] <= 4096) for s in shapes):
+            raise ValueError("camera image shapes must be [H, W, 3]")
+        if not all(isinstance(k, str) and k.startswith(IMAGE_PREFIX) for k in images):
+            raise ValueError(f"camera image keys must start with {IMAGE_PREFIX}")
+        return cls(tuple(d["keys"]), tuple(int(x) for x in d["dims"]), transforms, tuple(images), shapes)

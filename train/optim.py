@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import torch
 
 from demo.train.config import TrainConfig
-from demo.train.data import Batch
+from demo.train.data import STATE, Batch, Observation, batch_slice, batch_to
+from demo.train.device import autocast
 from demo.train.policy import Policy
 
 
@@ -48,6 +49,7 @@ class Learner:
     step: int = 0
     phase_start: int = 0  # the LR schedule restarts at phase_start (DAgger rounds)
     phase_steps: int = 1
+    device: torch.device = torch.device("cpu")
     _eval_copy: Policy | None = None
 
     def lr_at(self, step: int) -> float:
@@ -73,8 +75,11 @@ class Learner:
         return self._eval_copy.eval()
 
 
-def make_learner(policy: Policy, config: TrainConfig, step: int = 0, phase_steps: int | None = None) -> Learner:
-    """A fresh optimiser (and EMA) for ``policy``, its schedule's phase starting at ``step``."""
+def make_learner(policy: Policy, config: TrainConfig, step: int = 0, phase_steps: int | None = None,
+                 device: torch.device | None = None) -> Learner:
+    """A fresh optimiser (and EMA) for ``policy`` on ``device`` (default CPU), its schedule's phase starting at ``step``."""
+    device = device or torch.device("cpu")
+    policy.to(device)
     decay, no_decay = [], []
     for p in policy.parameters():
         (no_decay if p.ndim < 2 else decay).append(p)  # no weight decay on biases and norms
@@ -87,19 +92,28 @@ def make_learner(policy: Policy, config: TrainConfig, step: int = 0, phase_steps
         optimizer = torch.optim.AdamW(groups, lr=config.lr, foreach=True)
     ema = EMA(policy, config.ema) if config.ema > 0 else None
     return Learner(policy, optimizer, config, ema, step=step, phase_start=step,
-                   phase_steps=config.steps if phase_steps is None else phase_steps)
+                   phase_steps=config.steps if phase_steps is None else phase_steps, device=device)
 
 
-def train_step(learner: Learner, obs: torch.Tensor, action: torch.Tensor, pad: torch.Tensor) -> torch.Tensor:
-    """One optimiser step on a batch; returns the (detached) loss."""
+def add_obs_noise(obs: Observation, std: float) -> Observation:
+    """Gaussian noise on the normalised low-dim vector (images are augmented by their encoders' crops)."""
+    if isinstance(obs, dict):
+        return {**obs, STATE: obs[STATE] + std * torch.randn_like(obs[STATE])}
+    return obs + std * torch.randn_like(obs)
+
+
+def train_step(learner: Learner, obs: Observation, action: torch.Tensor, pad: torch.Tensor) -> torch.Tensor:
+    """One optimiser step on a batch (moved to the learner's device); returns the (detached) loss."""
     c = learner.config
     policy = learner.policy.train()
     lr = learner.lr_at(learner.step)
     for group in learner.optimizer.param_groups:
         group["lr"] = lr
+    obs, action, pad = batch_to((obs, action, pad), learner.device)
     if c.obs_noise > 0:
-        obs = obs + c.obs_noise * torch.randn_like(obs)
-    loss = policy.loss(obs, action, pad)
+        obs = add_obs_noise(obs, c.obs_noise)
+    with autocast(learner.device):
+        loss = policy.loss(obs, action, pad)
     learner.optimizer.zero_grad(set_to_none=True)
     loss.backward()
     if c.grad_clip > 0:
@@ -117,9 +131,11 @@ def validation_loss(learner: Learner, batch: Batch | None) -> float | None:
     if batch is None:
         return None
     policy = learner.eval_policy()
-    n = len(batch[0])
+    n = len(batch[1])
     # A stochastic loss (diffusion) stays comparable across steps and leaves the training RNG alone.
-    with torch.random.fork_rng(devices=[]):
+    with torch.random.fork_rng(devices=[learner.device] if learner.device.type == "cuda" else []), autocast(learner.device):
         torch.manual_seed(0)
-        total = sum(policy.loss(*[x[i : i + 1024] for x in batch]).item() * min(1024, n - i) for i in range(0, n, 1024))
+        total = 0.0
+        for i in range(0, n, 1024):
+            total += policy.loss(*batch_to(batch_slice(batch, i, i + 1024), learner.device)).item() * min(1024, n - i)
     return float(total / n)

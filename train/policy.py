@@ -41,9 +41,20 @@ class PolicySpec:
     action_dim: int
     n_obs: int = 1  # frames of observation history (current frame last)
     horizon: int = 1  # actions predicted per query (action chunk length)
+    # Camera images the policy reads besides the vector: (key, height, width), uint8 RGB. A policy
+    # with images is the registered one behind image encoders (demo.train.visuomotor).
+    images: tuple[tuple[str, int, int], ...] = ()
 
-    def to_json(self) -> dict[str, int]:
-        return dataclasses.asdict(self)
+    def to_json(self) -> dict[str, Any]:
+        d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items() if k != "images"}
+        if self.images:  # recorded only when set: state runs read as before
+            d["images"] = [list(i) for i in self.images]
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "PolicySpec":
+        images = tuple((str(k), int(h), int(w)) for k, h, w in d.get("images") or ())
+        return cls(**{k: int(v) for k, v in d.items() if k != "images"}, images=images)
 
 
 class Policy(nn.Module):
@@ -125,10 +136,16 @@ def policy_config(name: str, options: dict[str, Any] | None = None) -> Any:
         raise DemoError("--policy-opt", str(exc)) from None
 
 
-def build_policy(name: str, spec: PolicySpec, config: Any = None) -> Policy:
+def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any = None) -> Policy:
+    """Policy ``name`` for ``spec``; with camera images in ``spec``, behind image encoders configured
+    by ``encoder`` (an :class:`demo.train.encoders.EncoderConfig`, a dict of its fields, or None)."""
     cls = policy_class(name)
     if config is None or isinstance(config, dict):
         config = policy_config(name, config)
+    if spec.images:
+        from demo.train.visuomotor import VisuomotorPolicy, encoder_config
+
+        return VisuomotorPolicy(spec, config, cls, encoder_config(encoder))
     return cls(spec, config)
 
 

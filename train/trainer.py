@@ -46,13 +46,15 @@ from demo.train import checkpoint as ckpt
 from demo.train.actor import ExecConfig
 from demo.train.config import TrainConfig
 from demo.train.data import TrainingData
+from demo.train.device import resolve_device
 from demo.train.optim import Learner, make_learner, train_step, validation_loss
 from demo.train.policy import build_policy, policy_config
+from demo.train.visuomotor import encoder_config
 
 # What --resume may not change: the data, the policy and everything that shapes its training.
 RESUME_KEYS = ("algo", "policy", "seed", "batch_size", "lr", "n_obs", "chunk", "obs_keys", "train_mask", "val_mask",
                "val_fraction", "include_failures", "ema", "weight_decay", "warmup_steps", "min_lr_ratio",
-               "relative_actions", "obs_noise")
+               "relative_actions", "obs_noise", "encoder")
 
 
 def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
@@ -92,6 +94,11 @@ class TrainingRun:
                  name: str | None = None, title: str | None = None):
         config.check()
         policy_config(config.algo, config.policy)  # unknown policy or option: fail before touching anything
+        try:
+            encoder_config(config.encoder)
+        except (TypeError, ValueError) as exc:
+            raise DemoError("--encoder", str(exc)) from None
+        self.device = resolve_device(config.device)
         self.config = config
         self.out = Path(config.out)
         self.resume, self.overwrite, self.command = resume, overwrite, command
@@ -151,8 +158,9 @@ class TrainingRun:
         """A freshly initialised policy for ``data`` and its optimiser (``seed``: re-seed torch first)."""
         if seed is not None:
             torch.manual_seed(seed)
-        policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy))
-        return make_learner(policy, self.config, step, phase_steps)
+        policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy),
+                              self.config.encoder)
+        return make_learner(policy, self.config, step, phase_steps, self.device)
 
     def begin(self, store: EpisodeStore, data: TrainingData, learner: Learner,
               algo_record: dict[str, Any] | None = None) -> None:
@@ -191,7 +199,7 @@ class TrainingRun:
         try:
             learner.policy.load_state_dict(state["policy"])
             if learner.ema is not None:
-                learner.ema.shadow = {k: v.clone() for k, v in state["ema"].items()}
+                learner.ema.shadow = {k: v.to(learner.device, copy=True) for k, v in state["ema"].items()}
             learner.optimizer.load_state_dict(state["optimizer"])
             learner.step = int(state["step"])
             learner.phase_start = int(state.get("phase_start", 0))
