@@ -15,6 +15,7 @@ from demo.cli import convert  # noqa: F401,E402
 from demo.cli import diffusion  # noqa: F401,E402  (bench infer)
 from demo.cli import teleop  # noqa: F401,E402  (teleop, bench retarget)
 from demo.cli import train, eval  # noqa: F401,E402  (train, eval, bench train)
+from demo.cli import robot  # noqa: F401,E402  (robot check)
 
 NOT_BUILT = {
     "collect": ("Record demonstrations (scripted, kinesthetic, vr).", 3),

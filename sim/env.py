@@ -10,7 +10,8 @@ Conventions:
   Out-of-range targets are clipped to the actuators' ctrl ranges.
 - Observations (float32): ``obs.joint_pos`` (rad), ``obs.joint_vel`` (rad/s), ``obs.gripper``
   (measured closedness, 0 open .. 1 closed), ``obs.ee_pos`` (m) and ``obs.ee_quat`` (wxyz, w >= 0)
-  of the EE site in the robot base frame, then the task's (object poses ``obs.object_pos`` [K,3] /
+  of the EE site in the scene frame (the robot's base frame unless its config moves the base with
+  ``base_pos``/``base_quat``, see :mod:`demo.sim.scene`), then the task's (object poses ``obs.object_pos`` [K,3] /
   ``obs.object_quat`` [K,4], ``obs.goal_pos``, ...), then camera images ``obs.image_<camera>``
   (uint8 [H,W,3]). :meth:`Env.frame` adds ``sim.state`` (float64, MuJoCo integration state).
 - ``step`` returns ``terminated = True`` on every step at which the task's success predicate holds
@@ -33,8 +34,8 @@ from demo.errors import DemoError
 from demo.sim.geometry import canonical, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
 from demo.sim.render import parse_cameras
-from demo.sim.robot import RobotConfig, arm_actuator_for, load_robot, position_gain
-from demo.sim.scene import scene_spec
+from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
+from demo.sim.scene import compile_scene, scene_spec
 from demo.sim.task import Expert, Task
 from demo.store import ActionSpec, FeatureSpec
 
@@ -56,7 +57,7 @@ class Env:
         task.build(spec, self.base)
         self._spec = spec
         try:
-            self.model = spec.compile()
+            self.model = compile_scene(spec)
         except Exception as exc:
             raise DemoError(robot.config_path, f"scene for task {task.name} does not compile: {exc}") from None
         self.data = mujoco.MjData(self.model)
@@ -91,16 +92,18 @@ class Env:
         self._ctrl_hi = m.actuator_ctrlrange[:, 1].copy()
         no_range = ~m.actuator_ctrllimited.astype(bool)
         self._ctrl_lo[no_range], self._ctrl_hi[no_range] = -np.inf, np.inf
-        self.grip_act = m.actuator(r.gripper_actuator).id
-        self._grip_open, self._grip_closed = r.gripper_range
-        s, o = position_gain(m, self.grip_act, r.gripper_actuator, r.config_path)
-        self._grip_len_open = s * self._grip_open + o
-        self._grip_len_closed = s * self._grip_closed + o
+        # One gripper actuator, or one per finger (robot.grippers): each gets its own (open, closed) ctrl.
+        self.grip_act = np.array([m.actuator(name).id for name, _ in r.grippers])
+        self._grip_open = np.array([rng[0] for _, rng in r.grippers])
+        self._grip_closed = np.array([rng[1] for _, rng in r.grippers])
+        gains = np.array([position_gain(m, a, name, r.config_path) for a, (name, _) in zip(self.grip_act, r.grippers)])
+        self._grip_len_open = gains[:, 0] * self._grip_open + gains[:, 1]
+        self._grip_len_closed = gains[:, 0] * self._grip_closed + gains[:, 1]
         self.ee_site = m.site(r.ee_site).id
         self.ee_body = int(m.site_bodyid[self.ee_site])
         # Bodies that move with the fingers: strictly below the EE site's body in the tree.
         self.finger_bodies = np.array(
-            [b for b in range(m.nbody) if b != self.ee_body and _is_descendant(m, b, self.ee_body)], dtype=int
+            [b for b in range(m.nbody) if b != self.ee_body and is_descendant(m, b, self.ee_body)], dtype=int
         )
         self._finger_mask = np.zeros(m.nbody, dtype=bool)
         self._finger_mask[self.finger_bodies] = True
@@ -195,7 +198,7 @@ class Env:
     def _arm_ctrl(self, q: np.ndarray) -> np.ndarray:
         return q * self._arm_ctrl_scale + self._arm_ctrl_offset
 
-    def _gripper_ctrl(self, closedness: float) -> float:
+    def _gripper_ctrl(self, closedness: float) -> np.ndarray:
         c = min(1.0, max(0.0, float(closedness)))
         return self._grip_open + c * (self._grip_closed - self._grip_open)
 
@@ -250,8 +253,9 @@ class Env:
         return out
 
     def gripper_closedness(self) -> float:
-        length = float(self.data.actuator_length[self.grip_act])
-        return (length - self._grip_len_open) / (self._grip_len_closed - self._grip_len_open)
+        length = self.data.actuator_length[self.grip_act]
+        each = (length - self._grip_len_open) / (self._grip_len_closed - self._grip_len_open)
+        return float(each[0]) if each.shape[0] == 1 else float(each.mean())  # one actuator: its value, bit for bit
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """EE site pose in the base frame: position (m) and quaternion (wxyz)."""
@@ -356,14 +360,6 @@ class Env:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _is_descendant(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
-    while body > 0:
-        body = int(m.body_parentid[body])
-        if body == ancestor:
-            return True
-    return False
 
 
 def make_env(

@@ -6,11 +6,12 @@ is recorded **by content**::
 
     {"name": "my_arm",
      "config": "/abs/path/my_arm.toml",     # the TOML it was read from (informative only)
-     "toml": {"mjcf": "my_arm.xml", ...},   # every config key; mjcf relative to the files' folder
+     "toml": {"mjcf": "my_arm.xml", ...},   # every config key; mjcf (and gripper_mjcf) relative to the files' folder
      "files": {"my_arm.xml": "<sha256>", "meshes/base.stl": "<sha256>", ...},
      "source": "/abs/path"}                 # the folder those files were read from
 
-and the files themselves (the MJCF, its includes, meshes, textures, ...) are copied into the
+and the files themselves (the MJCF, its includes, meshes, textures, ..., and a separate gripper
+MJCF's) are copied into the
 store's (the run's) ``robot/`` folder, in their relative layout (see :mod:`demo.store.robot_files`).
 
 :func:`resolve_robot` turns a record back into a :class:`RobotConfig`: a user's ``--robot`` wins;
@@ -40,12 +41,14 @@ def robot_record(robot: RobotConfig) -> dict[str, Any]:
     if robot.config_path is not None and robot.config_path == BUILTIN_CONFIG.resolve():
         return {"name": robot.name, "config": BUILTIN}
     files = mjcf_files(robot.mjcf_path)
+    gripper = mjcf_files(robot.gripper_mjcf) if robot.gripper_mjcf is not None else []
+    files = list(dict.fromkeys(files + gripper))
     root = Path(os.path.commonpath([f.parent for f in files]))
     names = {f: f.relative_to(root).as_posix() for f in files}
     return {
         "name": robot.name,
         "config": str(robot.config_path) if robot.config_path else None,
-        "toml": config_keys(robot, names[files[0]]),
+        "toml": config_keys(robot, names[files[0]], names[gripper[0]] if gripper else None),
         "files": {names[f]: sha256_file(f) for f in files},
         "source": str(root),
     }
@@ -95,8 +98,12 @@ def _from_folder(record: dict[str, Any], files: dict[str, str], folder: Path, wh
     keys = record.get("toml")
     if not isinstance(keys, dict) or keys.get("mjcf") not in files:
         raise DemoError(where, "robot record's 'toml' names no MJCF among its recorded files")
+    if "gripper_mjcf" in keys and keys["gripper_mjcf"] not in files:
+        raise DemoError(where, "robot record's 'gripper_mjcf' is not among its recorded files")
     if where is not None and folder == Path(where) / ROBOT_DIR:  # the store's own copy: nothing may lead out
-        mjcf_files(folder / keys["mjcf"], within=folder)
+        for key in ("mjcf", "gripper_mjcf"):
+            if key in keys:
+                mjcf_files(folder / keys[key], within=folder)
     return robot_from_keys(keys, folder, folder, default_name=str(record.get("name", "robot")))
 
 

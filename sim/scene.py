@@ -1,23 +1,32 @@
-"""The scene every task builds on: the robot MJCF plus a table, a floor, lights and cameras.
+"""The scene every task builds on: a table, a floor, lights and cameras, and the robot attached.
 
-Frames: every pose `demo.sim` reports or accepts is in the robot's **base frame** (the
-``base_body`` of the robot config). The table top is the plane z = 0 of the base frame (the robot
-stands on the table), +x points away from the robot over the table. Scene geoms use contact class
-contype=1 conaffinity=3, so they touch each other and the robot (contype=2, conaffinity=1 on the
-built-in arm; robots with default contact bits touch them too).
+Frames: every pose `demo.sim` reports or accepts is in the **scene frame**: the table top is the
+plane z = 0, +x points away from the robot over the table. The robot's ``base_body`` sits at the
+config's ``base_pos``/``base_quat`` in it (default: the origin, unrotated), so for a robot left at
+its default place the scene frame *is* the robot's base frame. A robot whose workspace misses the
+table moves with ``base_pos`` (closer: ``x > 0``; ``z`` is the base's height above the table top).
+
+The robot MJCF is compiled on its own terms and attached (``MjSpec.attach``) to a scene spec of our
+own: its ``<compiler>`` options (``angle``, ``autolimits``, ``inertiagrouprange``, ``meshdir``, ...)
+and defaults apply to its elements only, and its keyframes are dropped (the env resets from the
+config's home configuration by joint name), so nothing in the robot file changes a task object.
+Its mesh and texture files are found relative to its own MJCF. Its ``<option>`` is replaced by the
+scene's. Scene geoms use contact class contype=1 conaffinity=3, so they touch each other and the
+robot (contype=2, conaffinity=1 on the built-in arm; robots with default contact bits touch them too).
 
 Physics: timestep 2 ms, ``implicitfast``; the env steps ``n_substeps`` of them per control step.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from demo.sim.geometry import lookat_quat, quat_mul, quat_to_mat
+from demo.sim.geometry import lookat_quat, quat_conj, quat_mul, quat_to_mat
 from demo.sim.robot import RobotConfig
 
 TIMESTEP = 0.002
@@ -52,8 +61,11 @@ class BaseFrame:
         return quat_mul(self.quat, np.asarray(q, dtype=np.float64)).tolist()
 
 
+SCENE_FRAME = BaseFrame(pos=np.zeros(3), quat=np.array([1.0, 0.0, 0.0, 0.0]))  # the scene frame is MuJoCo's world
+
+
 def base_frame(robot: RobotConfig, spec: mujoco.MjSpec) -> BaseFrame:
-    """Where the base body sits in the robot MJCF's world at its default configuration."""
+    """Where the base body sits in the robot MJCF's own world at its default configuration."""
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
@@ -67,20 +79,17 @@ def robot_body_names(robot: RobotConfig, spec: mujoco.MjSpec) -> list[str]:
 
 
 def scene_spec(robot: RobotConfig, max_camera_size: tuple[int, int] = (0, 0)) -> tuple[mujoco.MjSpec, BaseFrame]:
-    """The robot plus table, floor, light and the named cameras; tasks add their objects to it."""
-    spec = robot.spec()
-    base = base_frame(robot, spec)
+    """Table, floor, lights, the named cameras and the robot; tasks add their objects to it.
+
+    Returns the spec and the frame tasks work in (the scene frame, see the module docstring).
+    """
+    spec = mujoco.MjSpec()
+    spec.compiler.degree = False  # our own elements are in radians; the robot keeps its own setting
     spec.option.timestep = TIMESTEP
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    # The robot's keyframes lose their meaning once objects add free joints; the env resets from
-    # robot.home_qpos by joint name instead.
-    for key in list(spec.keys):
-        spec.delete(key)
-    if robot.gravcomp:
-        for body in spec.bodies:
-            if body.name != "world":
-                body.gravcomp = 1.0
+    attach_robot(spec, robot)
 
+    base = SCENE_FRAME
     world = spec.worldbody
     spec.add_material(name="demo_table", rgba=[0.55, 0.45, 0.35, 1.0], specular=0.05, shininess=0.1)
     table_top = np.array([TABLE_CENTER_X, 0.0, -TABLE_SIZE[2]])
@@ -104,6 +113,11 @@ def scene_spec(robot: RobotConfig, max_camera_size: tuple[int, int] = (0, 0)) ->
         contype=SCENE_CONTYPE,
         conaffinity=SCENE_CONAFFINITY,
     )
+    if robot.base_pos[2] > 0.005:  # a base above the table top stands on a riser (visual only: no contacts)
+        h = robot.base_pos[2] / 2
+        world.add_geom(name="robot_riser", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.09, h, 0],
+                       pos=[robot.base_pos[0], robot.base_pos[1], h], rgba=[0.35, 0.35, 0.38, 1.0],
+                       contype=0, conaffinity=0, group=1)
     world.add_light(name="key", pos=base.pos_to_world([0.4, -0.4, 2.0]), dir=[0.0, 0.2, -1.0], castshadow=False, diffuse=[0.45] * 3, specular=[0.05] * 3)
     world.add_light(name="fill", pos=base.pos_to_world([1.5, 0.8, 1.5]), dir=[-0.6, -0.3, -0.7], castshadow=False, diffuse=[0.25] * 3, specular=[0.0] * 3)
     spec.visual.headlight.diffuse = [0.3] * 3
@@ -120,6 +134,32 @@ def scene_spec(robot: RobotConfig, max_camera_size: tuple[int, int] = (0, 0)) ->
     spec.visual.global_.offwidth = max(640, int(max_camera_size[0]))
     spec.visual.global_.offheight = max(480, int(max_camera_size[1]))
     return spec, base
+
+
+def attach_robot(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
+    """Attach the robot (compiled on its own terms) so its base body lands at base_pos/base_quat.
+
+    Names are kept (empty prefix): robot configs, stores and runs name joints and actuators as the
+    robot file does. Keyframes are dropped: they lose their meaning once objects add free joints.
+    """
+    child = robot.spec()
+    for key in list(child.keys):
+        child.delete(key)
+    if robot.gravcomp:
+        for body in child.bodies:
+            if body.name != "world":
+                body.gravcomp = 1.0
+    # The scene's physics options win; equal options attach without a conflict warning.
+    for name in (n for n in dir(spec.option) if not n.startswith("_")):
+        setattr(child.option, name, getattr(spec.option, name))
+    base = base_frame(robot, child)
+    target_quat = np.asarray(robot.base_quat, dtype=np.float64)
+    target_quat = target_quat / np.linalg.norm(target_quat)
+    # frame * base_in_robot_world = target  =>  frame = target * inverse(base_in_robot_world)
+    frame_quat = quat_mul(target_quat, quat_conj(base.quat))
+    frame_pos = np.asarray(robot.base_pos, dtype=np.float64) - quat_to_mat(frame_quat) @ base.pos
+    frame = spec.worldbody.add_frame(pos=frame_pos.tolist(), quat=frame_quat.tolist())
+    spec.attach(child, prefix="", frame=frame)
 
 
 def _add_wrist_camera(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
@@ -188,3 +228,32 @@ def add_mocap_body(spec: mujoco.MjSpec, name: str) -> mujoco.MjsBody:
 def add_marker_geom(body: mujoco.MjsBody, gtype: mujoco.mjtGeom, size: Sequence[float], rgba: Sequence[float], **kw) -> None:
     """A visual-only geom (no contacts)."""
     body.add_geom(type=gtype, size=list(size), rgba=list(rgba), contype=0, conaffinity=0, mass=0.0, **kw)
+
+
+def _quiet_empty_prefix() -> None:
+    """Attaching with an empty prefix (names kept, see :func:`attach_robot`) makes MuJoCo warn when the
+    scene first compiles, on stderr and into ``MUJOCO_LOG.TXT`` in the working directory, that such a
+    model may not save to XML; `demo` never saves it, so that one warning is dropped (here for
+    MuJoCo's C-level handler, in :func:`compile_scene` for the compiler's Python warning). Other
+    MuJoCo warnings go on as Python warnings (or to a handler installed before)."""
+    previous = mujoco.get_mju_user_warning()
+
+    def handler(message: str) -> None:
+        if "empty prefix" in message:
+            return
+        if previous is not None:
+            previous(message)
+        else:
+            warnings.warn(f"MuJoCo: {message}", stacklevel=2)
+
+    mujoco.set_mju_user_warning(handler)
+
+
+def compile_scene(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """Compile a scene spec; the compiler's Python warning about the empty prefix is dropped too."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Attaching a spec with an empty prefix")
+        return spec.compile()
+
+
+_quiet_empty_prefix()

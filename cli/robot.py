@@ -1,0 +1,57 @@
+"""`demo robot check CFG`: is a robot config enough for every task (see :mod:`demo.sim.robot_check`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from demo.cli.main import app
+from demo.cli.options import json_option
+
+robot_app = typer.Typer(help="Robot configs: check that one is enough for every task.", no_args_is_help=True)
+app.add_typer(robot_app, name="robot")
+
+
+@robot_app.command("check")
+def robot_check(
+    config: Path = typer.Argument(..., metavar="TOML", help="Robot config (see the README's Robots section).", show_default=False),
+    episodes: int = typer.Option(20, "--episodes", min=1, help="Expert episodes on reach and on pick."),
+    targets: int = typer.Option(10, "--targets", min=1, help="Episodes per task whose targets the IK must reach."),
+    seed: int = typer.Option(0, help="Seed of the episodes (as demo collect --seed)."),
+    png: Path = typer.Option(None, "--png", metavar="FILE", help="Write the robot at home in the pick scene.",
+                             show_default="no picture"),
+    json_out: str = json_option("the report"),
+) -> None:
+    """DOF, joint limits, IK reach over every task's targets, the gripper closing, expert success on reach and pick."""
+    from demo.cli.output import kv_table, report_console, table, write_json
+    from demo.cli.progress import bars
+    from demo.errors import DemoError
+    from demo.sim.robot_check import MIN_SUCCESS, check_robot
+
+    with bars() as progress:
+        report = check_robot(config, episodes=episodes, seed=seed, targets=targets, png=png, progress=progress)
+    shown = report_console(json_out)
+    shown.print(kv_table(f"robot {report.robot}", [
+        ("config", report.config),
+        ("mjcf", report.mjcf),
+        ("DOF", report.dof),
+        ("gripper", ", ".join(report.gripper)),
+        ("base pose", f"pos {report.base_pos}, quat {report.base_quat}"),
+        ("gripper closes", f"{report.gripper_closes:.2f} of 1 after 1 s"),
+        ("picture", report.png or "-"),
+    ]))
+    shown.print(table("arm joints", ["joint", "lower", "upper", "actuation"],
+                      [(j.name, "-" if j.lower is None else f"{j.lower:.4g}", "-" if j.upper is None else f"{j.upper:.4g}",
+                        j.actuation) for j in report.joints]))
+    shown.print(table("IK over each task's targets (1 cm, 0.1 rad)", ["task", "reached", "rate"],
+                      [(t, f"{r['reached']}/{r['targets']}", f"{r['rate']:.0%}") for t, r in report.ik.items()]))
+    shown.print(table("expert success", ["task", "success", "rate"],
+                      [(t, f"{r['successes']}/{r['episodes']}", f"{r['rate']:.0%}") for t, r in report.experts.items()]))
+    write_json(report.to_json(), json_out)
+    if not report.ok:
+        worst = min(report.experts, key=lambda t: report.experts[t]["rate"])
+        r = report.experts[worst]
+        raise DemoError(config, f"the {worst} expert succeeds in {r['successes']}/{r['episodes']} episodes (needs "
+                                f"{MIN_SUCCESS:.0%}); check home, ee_site's axes (z out of the gripper, y along the "
+                                "fingers), max_joint_velocity and, for motor arms, pd_kp/pd_kd")
