@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import typer
 
+from demo.bench.crossrobot import CrossRobotConfig
 from demo.bench.faults import FaultsConfig
 from demo.cli.main import app
 from demo.cli.options import json_option
@@ -141,3 +142,47 @@ def bench_faults(
     write_json(r, json_out)
     if not r["ok"]:
         raise typer.Exit(1)  # a finished episode was lost, or a refusal was not one clean line
+
+
+_X = CrossRobotConfig()  # the experiment's defaults live in its config dataclass
+
+
+@bench_app.command("crossrobot")
+def bench_crossrobot(
+    json_out: str = json_option(default="-"),
+    out: str = typer.Option(_X.out, help="Working directory (stores and runs, replaced on every run)."),
+    robot: list[str] = typer.Option([], "--robot", metavar="TOML", help="The two arms, in order (repeat; 'builtin' is the "
+                                                                         "built-in arm); the first also gets a joint-space policy.",
+                                    show_default="builtin, robosuite_ur5e.toml"),
+    demos: int = typer.Option(_X.demos, help="Demonstrations per arm."),
+    episodes: int = typer.Option(_X.episodes, help="Evaluation episodes per policy and arm."),
+    seed: int = typer.Option(_X.seed, help="Seed of collection, training and evaluation."),
+    steps: int = typer.Option(None, help="BC optimiser steps of every policy.", show_default="demo train's"),
+    workers: int = typer.Option(_X.workers, help="Processes for collection and evaluation."),
+) -> None:
+    """One policy across robots: BC on two arms' ee7 demos vs per-arm and joint-space policies, success on each arm."""
+    from demo.bench.crossrobot import run
+    from demo.cli.output import report_console, table, write_json
+    from demo.cli.progress import bars
+    from demo.progress import Tick
+
+    config = CrossRobotConfig(out=out, robots=tuple(robot) or _X.robots, demos=demos, episodes=episodes, seed=seed,
+                              steps=steps, workers=workers)
+    with bars() as progress:
+        r = run(config, log=lambda text: progress(Tick("bench crossrobot", message=text)))
+    rows = [[row["policy"], row["robot"] + ("" if row["trained_on_robot"] else " (new to it)"),
+             f"{row['successes']}/{row['episodes']}", f"{row['ci95'][0]:.0%}-{row['ci95'][1]:.0%}",
+             ", ".join(f"{k} {v}" for k, v in sorted(row["failures"].items())) or "-"] for row in r["rows"]]
+    console = report_console(json_out)
+    console.print(table(f"bench crossrobot ({r['config']['task']}, {r['config']['demos']} demos per arm)",
+                        ["policy", "evaluated on", "success", "95% CI", "failures"], rows))
+    for arm, v in r["union_vs_per_arm"].items():
+        console.print(f"{arm}: union {v['union']:.0%} vs per-arm {v['per_arm']:.0%} ({v['points']:+.0f} points)",
+                      highlight=False, markup=False)
+    same = r["ee7_vs_joint"]
+    console.print(f"{same['robot']}, same demos: ee7 {same['ee7']:.0%} vs joint {same['joint']:.0%} (ee7 on the joint "
+                  f"policy's observations {same['ee7_on_the_joint_policy_observations']:.0%})", highlight=False, markup=False)
+    for name, line in r["refusals"].items():
+        console.print(f"{name} refused: {line}", highlight=False, markup=False)
+    console.print(f"target ({r['target']}): {'met' if r['meets_target'] else 'NOT met'}", highlight=False, markup=False)
+    write_json(r, json_out)

@@ -18,7 +18,9 @@ def eval_(
     task: str = typer.Option(None, help="Task (only the one the policy was trained on is allowed).",
                              show_default="the trained task"),
     blocks: int = typer.Option(None, help="stack: number of cubes (must match training).", show_default="the trained one"),
-    robot: Path = robot_option(default="the trained robot"),
+    robot: str = robot_option("Robot to evaluate on: the name of one the run was trained on, or a robot config TOML "
+                              "(another arm only for an end-effector-space policy, e.g. ee7, through that arm's IK).",
+                              "the (first) trained robot"),
     episodes: int = typer.Option(100, help="Episodes."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes (disjoint from collection seeds)."),
     workers: int = typer.Option(1, help="Parallel worker processes (results do not depend on it)."),
@@ -37,7 +39,7 @@ def eval_(
 
     config = EvalConfig(
         run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},
-        robot=str(robot) if robot else None, episodes=episodes, seed=seed, workers=workers, execute=execute,
+        robot=robot or None, episodes=episodes, seed=seed, workers=workers, execute=execute,
         ensemble=ensemble, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
     )
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
@@ -47,6 +49,7 @@ def eval_(
     rows = [
         ("run", result["run"]),
         ("task", f"{result['task']} {result['task_options'] or ''}".strip()),
+        ("robot", result["robot"] + ("" if result["robot_trained_on"] else " (not trained on: " + result["robot_note"] + ")")),
         ("episodes", result["episodes"]),
         ("success", f"{result['successes']}/{result['episodes']} = {result['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%})"),
         ("mean length (steps)", f"{result['mean_length']:.1f}"),

@@ -43,7 +43,8 @@ def _defaults(key: str) -> str:
 
 @app.command()
 def train(
-    store: Path = store_argument("Episode store to learn from (e.g. pick.zarr); never modified."),
+    stores: list[Path] = store_argument("Episode store to learn from (e.g. pick.zarr); never modified. Several: one policy "
+                                        "on their union (same task and action representation, e.g. two arms' ee7 stores)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (checkpoints, metrics, curves).",
                              show_default=False),
     algo: str = typer.Option("bc", help=f"Algorithm: {', '.join(ALGOS)}."),
@@ -99,8 +100,11 @@ def train(
 
     if algo not in ALGOS:
         raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
+    if algo == "dagger" and len(stores) > 1:
+        raise DemoError("--algo", "dagger trains on one store (it rolls out on one robot and aggregates into one store)")
     given = dict(
-        data=str(store), out=str(out), policy=parse_policy_opts(policy_opt), seed=seed, steps=steps,
+        data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
+        out=str(out), policy=parse_policy_opts(policy_opt), seed=seed, steps=steps,
         batch_size=batch_size, lr=lr, weight_decay=weight_decay, warmup_steps=warmup, ema=ema, n_obs=n_obs,
         chunk=chunk, execute=execute, ensemble=ensemble, ensemble_decay=ensemble_decay, obs_keys=_obs_keys(obs_keys),
         obs_noise=obs_noise, relative_actions=not absolute_actions, train_mask=train_mask, val_mask=val_mask,

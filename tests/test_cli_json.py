@@ -91,6 +91,8 @@ SKIPS = {
                         "test_train_diffusion_bench.py runs it end to end with --json - and parses stdout",
     "bench compounding": "collects, trains and evaluates BC, DAgger and chunked BC per stack size (~1 min in miniature); "
                          "test_bench_compounding.py runs it end to end with --json - and parses stdout",
+    "bench crossrobot": "collects on two arms, trains five policies and evaluates eight pairs (~14 s in miniature); "
+                        "test_bench_crossrobot.py runs it end to end with --json - and parses stdout",
 }
 
 

@@ -5,7 +5,8 @@ its own defaults) runs :func:`train`, which reads top to bottom:
 
 1. the config is resolved: flags not given take the policy's measured-best defaults
    (:func:`demo.train.config.for_policy`; BC: 16-step chunks with temporal ensembling);
-2. the store becomes training data (:func:`demo.train.data.prepare`: split, normalisers, windows);
+2. the store (or several, as one) becomes training data (:func:`demo.train.data.prepare_union`: split,
+   normalisers, windows);
 3. a :class:`demo.train.trainer.TrainingRun` opens the run directory, records the run (with the
    robot's files) and, with ``resume``, restores the last checkpoint;
 4. the policy's own loss (:meth:`Policy.loss`: MSE for the MLP, denoising for diffusion) is
@@ -21,9 +22,8 @@ from __future__ import annotations
 from typing import Any
 
 from demo.progress import Progress
-from demo.store import EpisodeStore
 from demo.train.config import TrainConfig
-from demo.train.data import prepare
+from demo.train.data import open_stores, prepare_union
 from demo.train.trainer import TrainingRun
 
 
@@ -36,10 +36,10 @@ def train(config: TrainConfig, *, progress: Progress | None = None, resume: bool
     """
     config = config.resolved()
     with TrainingRun(config, progress=progress, resume=resume, overwrite=overwrite, command=command) as run:
-        with EpisodeStore.open(config.data) as store:
-            data = prepare(config, store)
+        with open_stores(config.stores) as stores:  # several: one policy on their union
+            data = prepare_union(config, stores)
             learner = run.new_learner(data)
-            run.begin(store, data, learner)
+            run.begin(stores, data, learner)
         if resume:
             run.restore(learner)
             learner.phase_steps = config.steps  # a longer --steps stretches the remaining schedule

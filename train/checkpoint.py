@@ -12,6 +12,7 @@
       metrics.json         loss and success curves, final figures
       curves.png           the same as a plot
       robot/               the robot's MJCF and asset files (a non-built-in robot; see save_robot)
+      robots/<i>/robot/    a union's other robots' files (run.json "robots"[i], i >= 1; see robot_home)
 
 No file is ever unpickled: ``policy.safetensors`` is read by safetensors (a pickle is not a valid
 file), ``train_state.pt`` by ``torch.load(weights_only=True)``, whose restricted unpickler refuses
@@ -53,6 +54,7 @@ POLICY_FILE = "policy.safetensors"
 STATE_FILE = "train_state.pt"
 METRICS_FILE = "metrics.json"
 CURVES_FILE = "curves.png"
+ROBOTS_DIR = "robots"
 
 
 @dataclass
@@ -140,7 +142,7 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
 
 # What a run record's sections must be, for the code that reads them (eval, resume, dagger).
 _SECTIONS: dict[str, tuple[type, ...]] = {"policy": (dict,), "task": (dict,), "robot": (dict, type(None)),
-                                          "data": (dict, type(None)), "train": (dict, type(None))}
+                                          "robots": (list,), "data": (dict, type(None)), "train": (dict, type(None))}
 
 
 def _check_sections(run: dict[str, Any], path: Path) -> None:
@@ -151,6 +153,8 @@ def _check_sections(run: dict[str, Any], path: Path) -> None:
     task = run.get("task") or {}
     if not isinstance(task.get("name", ""), str) or not isinstance(task.get("options") or {}, dict):
         raise DemoError(path, "'task' must name the task (a string) and its options (an object)")
+    if not all(isinstance(r, dict) for r in run.get("robots", [])):
+        raise DemoError(path, "'robots' must be a list of robot records (JSON objects)")
     seeds = (run.get("data") or {}).get("seeds", [])
     if not isinstance(seeds, list) or not all(isinstance(s, int) and not isinstance(s, bool) for s in seeds):
         raise DemoError(path, "'data.seeds' must be a list of integers")
@@ -177,6 +181,35 @@ def save_robot(run_dir: str | Path, record: dict[str, Any] | None, store_path: s
     then renamed) so that the run alone evaluates after it is moved."""
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     copy_robot_files(record, store_path, run_dir)
+
+
+def distinct_robots(records: list[dict[str, Any] | None]) -> tuple[list[dict[str, Any]], list[int]]:
+    """The different robots among the records of several stores (by content, in first-seen order)
+    and, per store, the index of its robot among them."""
+    from demo.sim.robot_record import same_robot
+
+    robots: list[dict[str, Any]] = []
+    index = []
+    for record in records:
+        found = next((i for i, r in enumerate(robots) if same_robot(r, record)), None)
+        if found is None:
+            robots.append(record or {})
+            found = len(robots) - 1
+        index.append(found)
+    return robots, index
+
+
+def trained_robots(run: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every robot a run was trained on (a union's ``robots``, else its one ``robot``); the first is the default."""
+    return list(run.get("robots") or [run.get("robot") or {}])
+
+
+def robot_home(run_dir: str | Path | None, index: int) -> Path | None:
+    """The folder whose ``robot/`` holds the files of the run's ``index``-th robot: the run directory
+    for the first, ``robots/<index>/`` for a union's others."""
+    if run_dir is None:
+        return None
+    return Path(run_dir) if index == 0 else Path(run_dir) / ROBOTS_DIR / str(index)
 
 
 def save_policy(

@@ -83,7 +83,7 @@ DAGGER_DEFAULTS: dict[str, Any] = {"chunk": 1, "ensemble": False}
 class TrainConfig:
     """Every hyperparameter of a training run. ``None`` = the policy's default (see :func:`for_policy`)."""
 
-    data: str = ""  # episode store
+    data: str | tuple[str, ...] = ""  # episode store, or several trained on as one (demo.train.data.prepare_union)
     out: str = ""  # run directory
     algo: str = "bc"  # registered policy (demo.train.policy): bc (MLP), diffusion, ...
     policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
@@ -122,6 +122,11 @@ class TrainConfig:
     device: str = "auto"  # auto (CUDA, else MPS, else CPU) | cpu | cuda | mps (demo.train.device)
     threads: int = 1  # torch threads (small networks gain little from more; idle threads busy-wait on a shared machine); 0 = torch's default
 
+    @property
+    def stores(self) -> tuple[str, ...]:
+        """The episode stores trained on, in order (one unless a union)."""
+        return (self.data,) if isinstance(self.data, str) else tuple(self.data)
+
     def given(self) -> dict[str, Any]:
         """The fields that are set (not ``None``)."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if getattr(self, f.name) is not None}
@@ -154,6 +159,8 @@ class TrainConfig:
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["obs_keys"] = list(self.obs_keys)
+        if not isinstance(self.data, str):
+            d["data"] = list(self.data)
         d["policy"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.policy.items()}
         if not self.encoder:  # recorded only when set: state runs read as before
             d.pop("encoder")
@@ -166,10 +173,12 @@ def policy_defaults(name: str, images: bool = False) -> dict[str, Any]:
     return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
 
 
-def reads_images(data: str | None, obs_keys: tuple[str, ...] = ()) -> bool:
-    """Whether a policy trained on the store ``data`` with ``obs_keys`` reads camera images.
+def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] = ()) -> bool:
+    """Whether a policy trained on the store ``data`` (several: the first) with ``obs_keys`` reads camera images.
 
     False where the store cannot be read: the data pipeline then says what is wrong with it."""
+    if data and not isinstance(data, str):
+        data = data[0]
     if not data:
         return False
     from demo.store import EpisodeStore

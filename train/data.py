@@ -16,10 +16,17 @@
 
 Frames may carry a per-frame expert-label flag (:data:`LABEL_KEY`, written by DAgger): windows then
 start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss).
+
+:func:`prepare_union` trains on several stores as one (e.g. the same task on two arms, both in
+``ee7``): frames concatenated store after store (episode ends offset), each store split with the
+seed on its own, the normalisers fitted on the union's training frames. The stores must share the
+task, the rate, the action representation and the chosen observations' shapes (:func:`check_union`).
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -42,6 +49,19 @@ _UNIT = MinMaxNormalizer.from_limits(np.full(1, -1.0, np.float32), np.ones(1, np
 STATE = "state"  # the low-dim vector's entry in an observation dict (with cameras)
 Observation = torch.Tensor | dict[str, torch.Tensor]  # [B, n_obs, D], or {"state": that, camera key: uint8 [B, n_obs, H, W, 3]}
 Batch = tuple[Observation, torch.Tensor, torch.Tensor]  # obs, action [B, H, A], action_pad [B, H]
+# Observations every arm reports in the same frame and units (scene frame, m, closedness): a union of
+# arms with different joints trains on these (with the object's offset from the EE, see ObsSpec).
+ROBOT_AGNOSTIC_KEYS = ("obs.ee_pos", "obs.ee_quat", "obs.gripper", "obs.object_pos", "obs.object_quat",
+                       "obs.object_pos-obs.ee_pos")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One store of the training data: its episodes are ``first_episode ..`` in the concatenation."""
+
+    path: str
+    first_episode: int
+    episodes: int
 
 
 def batch_slice(batch: Batch, start: int, stop: int) -> Batch:
@@ -81,6 +101,7 @@ class TrainingData:
     relative: RelativeActions | None
     spec: PolicySpec  # obs_dim, action_dim, n_obs, horizon (= chunk), cameras
     images: dict[str, np.ndarray] = field(default_factory=dict)  # camera key -> [N, H, W, 3] uint8; none = state only
+    sources: tuple[Source, ...] = ()  # the stores, in concatenation order (one unless a union)
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -100,7 +121,8 @@ class TrainingData:
         """The store's frames now (it may have grown) with another split and *these* normalisers."""
         raw = _load_arrays(store, self.obs_spec, self.relative)
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
-                       ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes)
+                       ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
+                       sources=(Source(str(store.path), 0, len(raw[3])),))
 
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
@@ -112,23 +134,107 @@ def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None =
     """
     obs_spec = ObsSpec.from_features(store.meta.features, config.obs_keys or None, str(store.path))
     relative = default_relative(store.meta) if config.relative_actions else None
-    train_eps, val_eps = split if split is not None else split_episodes(store, config, among)
-    obs, action, base, ends, labelled, images = _load_arrays(store, obs_spec, relative)
+    split = split if split is not None else split_episodes(store, config, among)
+    return _assemble(config, [store], [split], obs_spec, relative)
+
+
+def prepare_union(config: TrainConfig, stores: Sequence[EpisodeStore]) -> TrainingData:
+    """Steps 1-3 on several stores as one (one store: :func:`prepare`): frames concatenated store after
+    store, each store's episodes split with the seed on its own (``val_fraction`` or ``val_mask`` of
+    each), normalisers fitted on the union's training frames. Refuses stores that cannot share a
+    policy (:func:`check_union`), naming the store at fault."""
+    if len(stores) == 1:
+        return prepare(config, stores[0])
+    paths = [s.path.resolve() for s in stores]
+    twice = next((s.path for s, p in zip(stores, paths) if paths.count(p) > 1), None)
+    if twice is not None:
+        raise DemoError(twice, "is named twice; a union takes each store once")
+    first = stores[0]
+    obs_spec = ObsSpec.from_features(first.meta.features, config.obs_keys or None, str(first.path))
+    for store in stores[1:]:
+        check_union(first, store, obs_spec)
+    relative = default_relative(first.meta) if config.relative_actions else None
+    return _assemble(config, stores, [split_episodes(store, config) for store in stores], obs_spec, relative)
+
+
+@contextlib.contextmanager
+def open_stores(paths: Sequence[str]) -> Iterator[list[EpisodeStore]]:
+    """The stores at ``paths``, open for reading until the block ends."""
+    with contextlib.ExitStack() as stack:
+        yield [stack.enter_context(EpisodeStore.open(p)) for p in paths]
+
+
+def check_union(first: EpisodeStore, store: EpisodeStore, obs_spec: ObsSpec) -> None:
+    """Refuse (one DemoError naming ``store``) a store that cannot share a policy with ``first``:
+    another task or rate, another action representation (joint-space actions of arms with other
+    joints included), or observations ``obs_spec`` reads that it lacks or holds in another shape."""
+    a, b, where = first.meta, store.meta, store.path
+    convert = "convert every store with `demo convert STORE --to ee7 --out ...`"
+    task_a, task_b = a.task or {}, b.task or {}
+    if (task_a.get("name"), task_a.get("options")) != (task_b.get("name"), task_b.get("options")):
+        raise DemoError(where, f"holds task {task_b.get('name')!r} {task_b.get('options') or ''}, {first.path} "
+                               f"{task_a.get('name')!r} {task_a.get('options') or ''}: one policy trains on one task")
+    if a.fps != b.fps:
+        raise DemoError(where, f"runs at {b.fps} Hz, {first.path} at {a.fps} Hz: one policy acts at one rate")
+    if a.action.to_json() != b.action.to_json():
+        if a.action.frame == "joint" and b.action.frame == "joint":
+            mine, theirs = (list(x.action.params.get("arm_joints") or x.action.names) for x in (b, a))
+            raise DemoError(where, f"{b.action.name} actions of {len(mine)} joints ({', '.join(mine)}) cannot share a "
+                                   f"policy with {first.path}'s {len(theirs)} joints ({', '.join(theirs)}): joint-space "
+                                   f"actions of arms with different joints cannot share a policy; {convert}")
+        raise DemoError(where, f"holds {b.action.name} actions ({b.action.dim} values), {first.path} {a.action.name} "
+                               f"({a.action.dim}): one policy outputs one action representation; {convert}")
+    hint = f"choose observations every robot reports, e.g. --obs-keys {','.join(ROBOT_AGNOSTIC_KEYS)}"
+    try:
+        theirs = ObsSpec.from_features(b.features, list(obs_spec.keys) + list(obs_spec.images), str(where))
+    except DemoError as exc:
+        raise DemoError(where, f"{exc.problem}; {hint}") from None
+    pairs = zip((*obs_spec.keys, *obs_spec.images), (*obs_spec.dims, *obs_spec.image_shapes), (*theirs.dims, *theirs.image_shapes))
+    for key, mine, other in pairs:
+        if mine != other:
+            source = key.partition("-")[0]  # a difference "obs.a-obs.b" has obs.a's shape
+            raise DemoError(where, f"observation {source} is {tuple(b.features[source].shape)} here and "
+                                   f"{tuple(a.features[source].shape)} in {first.path}; {hint}")
+
+
+def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Sequence[tuple[np.ndarray, np.ndarray]],
+              obs_spec: ObsSpec, relative: RelativeActions | None) -> TrainingData:
+    """The stores' frames one after another with their splits (episode indices offset), the
+    minimum checked, normalisers fitted on the training frames of all of them."""
+    parts = [_load_arrays(store, obs_spec, relative) for store in stores]
+    first_episode = np.cumsum([0] + [len(p[3]) for p in parts])
+    first_frame = np.cumsum([0] + [int(p[3][-1]) if len(p[3]) else 0 for p in parts])
+    obs, action = _join([p[0] for p in parts]), _join([p[1] for p in parts])
+    base = None if relative is None else _join([p[2] for p in parts])
+    ends = _join([p[3] + first_frame[i] for i, p in enumerate(parts)])
+    labelled = None
+    if any(p[4] is not None for p in parts):  # a store without label flags is labelled throughout
+        labelled = _join([p[4] if p[4] is not None else np.ones(len(p[1]), bool) for p in parts])
+    images = {k: _join([p[5][k] for p in parts]) for k in obs_spec.images}
+    train_eps = _join([s[0] + first_episode[i] for i, s in enumerate(splits)])
+    val_eps = _join([s[1] + first_episode[i] for i, s in enumerate(splits)])
+    sources = tuple(Source(str(s.path), int(first_episode[i]), len(p[3])) for i, (s, p) in enumerate(zip(stores, parts)))
     frames = frame_indices(ends, train_eps)
     if labelled is not None:
         frames = frames[labelled[frames]]
     window = config.n_obs + config.chunk - 1
     if len(train_eps) < MIN_TRAIN_EPISODES or len(frames) < window:
-        raise DemoError(store.path, f"too little to train on: {len(train_eps)} training episode(s) with {len(frames)} "
-                                    f"labelled frame(s); the minimum is {MIN_TRAIN_EPISODES} episodes and one window "
-                                    f"of {window} frames (n_obs {config.n_obs} + chunk {config.chunk} - 1)")
+        where = ", ".join(str(s.path) for s in stores)
+        raise DemoError(where, f"too little to train on: {len(train_eps)} training episode(s) with {len(frames)} "
+                               f"labelled frame(s); the minimum is {MIN_TRAIN_EPISODES} episodes and one window "
+                               f"of {window} frames (n_obs {config.n_obs} + chunk {config.chunk} - 1)")
     obs_norm = MinMaxNormalizer.fit(obs[frames])
     cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
-    spec = PolicySpec(obs_spec.dim, store.meta.action.dim, config.n_obs, config.chunk, cameras)
+    spec = PolicySpec(obs_spec.dim, stores[0].meta.action.dim, config.n_obs, config.chunk, cameras)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
-                        obs_norm, _UNIT, relative, spec, images)
+                        obs_norm, _UNIT, relative, spec, images, sources)
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
+
+
+def _join(arrays: list[np.ndarray]) -> np.ndarray:
+    """``arrays`` one after another (the one array itself, uncopied, when there is one)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
 
 
 def split_episodes(store: EpisodeStore, config: TrainConfig, among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

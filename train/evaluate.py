@@ -12,6 +12,13 @@ it ends at the task horizon, or once success has held for 0.5 s. Outcomes:
 - the task's own reason where it has failed for good (``Task.failure``: avoid's ``collision``);
 - ``error``: the policy produced a non-finite action or the simulation failed.
 
+Robots: a policy evaluates on a robot it was trained on (the run's first by default; ``--robot``
+names another of a union's robots, or a robot config TOML). A robot it was not trained on is
+refused unless the policy acts in end-effector space (``ee7``, ``ee_delta``, ``ee_abs``: poses in
+the robot's base frame, which the arm's own IK turns into its joint targets) and reads observations
+that robot reports in the same shapes; the result then says the robot is new to the policy.
+Joint-space actions are one arm's joint targets and never transfer.
+
 Evaluation is deterministic for a seed, whatever ``--workers``: every episode's state depends only
 on its seed, and torch runs single-threaded here (a small network at batch 1 gains nothing from
 threads, and thread counts could change float summation order).
@@ -36,7 +43,7 @@ from demo.seeds import EVAL_OFFSET, eval_seeds
 from demo.sim.rollout import StepCommand, rollout
 from demo.train.actions import make_action_adapter
 from demo.train.actor import ExecConfig, PolicyActor
-from demo.train.checkpoint import PolicyBundle, load_bundle
+from demo.train.checkpoint import PolicyBundle, load_bundle, robot_home, trained_robots
 from demo.train.device import resolve_device
 
 Z95 = 1.959963984540054
@@ -87,8 +94,8 @@ def resolve_target(
     bundle: PolicyBundle, task: str | None, task_options: dict[str, Any] | None, robot: str | None
 ) -> tuple[str, dict[str, Any], Any]:
     """The task, task options and robot (a ``RobotConfig``) to evaluate on; refuses ones the policy was
-    not trained for. ``robot``: a config TOML overriding the run's record (``--robot``); else the robot
-    files the run (or its training store's recorded source) carries."""
+    not trained for. ``robot`` (``--robot``): the name of a robot the run was trained on, or a robot
+    config TOML; else the run's first robot, from the files the run (or its store's recorded source) carries."""
     where = str(bundle.path or "run")
     trained_task = bundle.task.get("name")
     trained_options = dict(bundle.task.get("options") or {})
@@ -102,23 +109,55 @@ def resolve_target(
         raise DemoError(
             where, f"was trained on {task} with options {trained_options}; it cannot be evaluated with {options}"
         )
+    return task, options, pick_robot(bundle, robot)
+
+
+def pick_robot(bundle: PolicyBundle, robot: str | None) -> Any:
+    """The ``RobotConfig`` to evaluate on: the run's first robot, another it was trained on by name,
+    or the robot config TOML ``robot`` (whether the policy may run on it is :func:`robot_transfer`'s call)."""
     from demo.sim.robot_record import resolve_robot
 
-    return task, options, resolve_robot(bundle.robot, robot, bundle.path)
+    records = trained_robots(bundle.run)
+    names = [r.get("name") for r in records]
+    if robot is None or (robot in names and not Path(robot).is_file()):
+        i = 0 if robot is None else names.index(robot)
+        return resolve_robot(records[i], None, robot_home(bundle.path, i))
+    if not Path(robot).exists():
+        raise DemoError(robot, f"no such robot config, nor a robot the run was trained on ({', '.join(map(str, names))})")
+    return resolve_robot(None, robot)
 
 
-def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: str | None, cameras: Sequence[Any] = ()) -> Any:
-    """The task's environment for ``bundle``, rendering the cameras its policy reads (and ``cameras``)."""
+def robot_transfer(bundle: PolicyBundle, robot: str) -> str | None:
+    """``None`` when the policy was trained on ``robot`` (a name), else the note saying it is new to the
+    policy, where its actions allow it (end-effector space); refuses a joint-space policy."""
+    trained = [r.get("name") for r in trained_robots(bundle.run) if r.get("name")]
+    if not trained or robot in trained:
+        return None
+    where, action = str(bundle.path or "run"), bundle.action
+    which = ", ".join(repr(n) for n in trained)
+    if action.frame == "joint":
+        raise DemoError(where, f"was trained on robot {which}; it cannot be evaluated on {robot!r}: its {action.name} "
+                               "actions are joint targets of the arm it was trained on (a policy trained on actions "
+                               "converted with `demo convert --to ee7` runs on other arms through their IK)")
+    return (f"robot {robot!r} is not among the robots the policy was trained on ({which}); its {action.name} actions "
+            "run through that arm's IK")
+
+
+def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: Any, cameras: Sequence[Any] = ()) -> Any:
+    """The task's environment for ``bundle`` on ``robot`` (a ``RobotConfig``), rendering the cameras its
+    policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`)."""
     from demo.sim import make_env
 
-    where = str(bundle.path or "run")
     env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
-    trained_robot = bundle.robot.get("name")
-    if trained_robot and env.robot.name != trained_robot:
-        env.close()
-        raise DemoError(where, f"was trained on robot {trained_robot!r}; it cannot be evaluated on {env.robot.name!r}")
     try:
-        bundle.obs_spec.check_against(env.features, f"{task} environment (robot {env.robot.name})")
+        new = robot_transfer(bundle, env.robot.name)
+        try:
+            bundle.obs_spec.check_against(env.features, f"{task} environment (robot {env.robot.name})")
+        except DemoError as exc:
+            if new is None:
+                raise
+            raise DemoError(exc.where, f"{exc.problem} (a policy for several arms reads observations every arm "
+                                       "reports, e.g. demo train --obs-keys obs.ee_pos,obs.ee_quat,obs.gripper,...)") from None
     except DemoError:
         env.close()
         raise
@@ -286,6 +325,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
 
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
+    robot_name, transfer = env.robot.name, robot_transfer(bundle, env.robot.name)
     try:
         if config.workers == 1:
             episodes = iter_episodes_inline(bundle, env, jobs, execution)
@@ -304,7 +344,9 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             "algo": bundle.algo,
             "task": task,
             "task_options": options,
-            "robot": bundle.robot.get("name"),
+            "robot": robot_name,
+            "robot_trained_on": transfer is None,
+            **({"robot_note": transfer} if transfer else {}),
             "seed": config.seed,
             "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.seeds)",
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),

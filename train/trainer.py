@@ -5,7 +5,8 @@
 1. **seeding and threads**: ``torch.manual_seed(seed)``, the batch RNG, ``torch.set_num_threads``;
 2. **the run directory** (:mod:`demo.train.checkpoint`): refused if it holds something else,
    replaced only with ``overwrite``, continued with ``resume`` (which must train the same thing);
-3. **the record** ``run.json``: task, robot, data split, the resolved config, the exact command;
+3. **the record** ``run.json``: task, robot, data split, the resolved config, the exact command
+   (a union of stores: every store and every robot, each robot's files kept in the run);
 4. **the loop** (:meth:`TrainingRun.fit`): batches of training windows, one optimiser step each
    (:func:`demo.train.optim.train_step`), mean training loss every ``log_every`` steps, validation
    loss every ``val_every``, rollout success every ``eval_every`` (:class:`Monitor`: episodes of
@@ -33,6 +34,7 @@ import json
 import math
 import shutil
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -105,7 +107,7 @@ class TrainingRun:
         self.progress = or_silent(progress)
         self.total_steps = total_steps or config.steps
         self.stage = f"train {name or config.algo}"  # the progress bar's label
-        self.title = title or f"{config.algo} on {Path(config.data).name}"
+        self.title = title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}"
         if config.threads > 0:
             torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
@@ -162,27 +164,39 @@ class TrainingRun:
                               self.config.encoder)
         return make_learner(policy, self.config, step, phase_steps, self.device)
 
-    def begin(self, store: EpisodeStore, data: TrainingData, learner: Learner,
+    def begin(self, store: EpisodeStore | Sequence[EpisodeStore], data: TrainingData, learner: Learner,
               algo_record: dict[str, Any] | None = None) -> None:
-        """Record the run (``run.json``, the robot's files) for the data it trains on (``store``, open),
-        opening the run directory once the robot is found; with ``resume``, check that the run
-        continues the same training (only ``steps`` and monitoring may change)."""
-        robot = ckpt.run_robot(store.meta.robot, store.path, self.config.robot)  # a missing robot file fails before any write
+        """Record the run (``run.json``, the robots' files) for the data it trains on (``store``, open;
+        several for a union, in ``data``'s order), opening the run directory once every robot is found;
+        with ``resume``, check that the run continues the same training (only ``steps`` and monitoring
+        may change)."""
+        stores = [store] if isinstance(store, EpisodeStore) else list(store)
+        if self.config.robot is not None and len(stores) > 1:
+            raise DemoError("--robot", "replaces the robot of a single store; each store of a union keeps its own")
+        # A missing robot file fails before any write.
+        records = [ckpt.run_robot(s.meta.robot, s.path, self.config.robot) for s in stores]
         self.open_directory()
         self.attach(learner, data)
-        self.action = store.meta.action
-        self.execution = execution_config(self.config, store.meta.action)
-        seeds = store.column("seed") if store.num_episodes else np.zeros(0, int)
-        self.record = run_record(self.config, store.meta, data, learner, self.execution, self.command, algo_record, seeds)
-        self.record["robot"] = robot
+        first = stores[0]
+        self.action = first.meta.action
+        self.execution = execution_config(self.config, first.meta.action)
+        seeds = np.concatenate([s.column("seed") if s.num_episodes else np.zeros(0, int) for s in stores])
+        self.record = run_record(self.config, first.meta, data, learner, self.execution, self.command, algo_record, seeds)
+        self.record["robot"] = records[0]
+        robots, robot_of = ckpt.distinct_robots(records)
+        if len(stores) > 1:
+            self.record["robots"] = robots
+            self.record["data"]["stores"] = [
+                {**store_record(data, i), "robot": robots[robot_of[i]].get("name")} for i in range(len(stores))]
         if self.resume:
             previous = ckpt.read_run(self.out)
             check_resumable(self.out, previous, self.record)
             self.record["created"] = previous.get("created", self.record["created"])
             self.record["resumed"] = [*previous.get("resumed", []),
                                       {"at_step": int(self._saved["step"]), "command": self.command, "time": ckpt.now()}]
-        # The run carries its robot (config and files) so that it evaluates wherever it is moved.
-        ckpt.save_robot(self.out, robot, store.path)
+        # The run carries its robots (config and files) so that it evaluates wherever it is moved.
+        for i, robot in enumerate(robots):
+            ckpt.save_robot(ckpt.robot_home(self.out, i), robot, stores[robot_of.index(i)].path)
         ckpt.write_run(self.out, self.record)
 
     def attach(self, learner: Learner, data: TrainingData) -> None:
@@ -334,7 +348,7 @@ def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner
         "robot": meta.robot,
         "fps": meta.fps,
         "data": {
-            "path": str(Path(config.data).resolve()),
+            "path": str(Path(config.stores[0]).resolve()),  # a union's first store; all of them under "stores"
             "episodes_total": len(data.ends),
             "train_episodes": data.train_episodes.tolist(),
             "val_episodes": data.val_episodes.tolist(),
@@ -350,13 +364,32 @@ def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner
     }
 
 
+def store_record(data: TrainingData, i: int) -> dict[str, Any]:
+    """What ``run.json["data"]["stores"]`` says of the ``i``-th store of a union: its path, where its
+    episodes start in the concatenation, how many it holds and how many of them train and validate."""
+    source = data.sources[i]
+    lo, hi = source.first_episode, source.first_episode + source.episodes
+    train, val = (int(np.count_nonzero((eps >= lo) & (eps < hi))) for eps in (data.train_episodes, data.val_episodes))
+    return {"path": str(Path(source.path).resolve()), "first_episode": lo, "episodes": source.episodes,
+            "train_episodes": train, "val_episodes": val}
+
+
+def data_paths(record: dict[str, Any]) -> list[str]:
+    """The store paths a run record trained on (a union's stores, else its one store)."""
+    data = record.get("data") or {}
+    stores = data.get("stores")
+    if isinstance(stores, list) and stores:
+        return [str(Path(s.get("path", ""))) for s in stores if isinstance(s, dict)]
+    return [str(Path(data.get("path", "")))]
+
+
 def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) -> None:
     """--resume must continue the same training: same data, policy and data-shaping options."""
     a, b = previous.get("train", {}), run["train"]
     differ = [k for k in RESUME_KEYS if json.dumps(a.get(k)) != json.dumps(b.get(k))]
     if previous.get("algo") != run["algo"] and "algo" not in differ:
         differ.insert(0, "algo")
-    if str(Path(previous.get("data", {}).get("path", ""))) != str(Path(run["data"]["path"])):
+    if data_paths(previous) != data_paths(run):
         differ.append("data")
     if differ:
         raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps and monitoring may change)")
