@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 import typer
@@ -93,8 +94,11 @@ def train(
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its last checkpoint."),
     overwrite: bool = overwrite_option("an existing run in --out"),
     json_out: str = json_option("the run summary"),
+    nproc: int = typer.Option(1, "--nproc", help="Data-parallel processes (torchrun, DDP; --batch-size is per process).",
+                              show_default="1: this process alone"),
 ) -> None:
     """Train a policy on a store: bc (MLP, action chunks), dagger (with the task's expert), diffusion."""
+    from demo.train import distributed
     from demo.train.bc import train as train_bc
     from demo.train.config import for_policy
 
@@ -102,6 +106,12 @@ def train(
         raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
     if algo == "dagger" and len(stores) > 1:
         raise DemoError("--algo", "dagger trains on one store (it rolls out on one robot and aggregates into one store)")
+    if nproc < 1:
+        raise DemoError("--nproc", f"must be at least 1, got {nproc}")
+    if algo == "dagger" and max(nproc, distributed.env_world_size()) > 1:
+        raise DemoError("--nproc", "dagger trains in one process (its rollouts and store are not data-parallel)")
+    if nproc > 1 and distributed.env_world_size() == 1:  # not yet under torchrun: become its N processes
+        raise typer.Exit(distributed.launch(_without_nproc(shlex.split(invocation())[1:]), nproc))
     given = dict(
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
         out=str(out), policy=parse_policy_opts(policy_opt), seed=seed, steps=steps,
@@ -140,8 +150,22 @@ def train(
         for r in summary["rounds"]:
             rows.append((f"round {r['round']}", f"labels {r['labels_total']}, rollout success "
                          f"{'-' if r['rollout_success'] is None else format(r['rollout_success'], '.0%')}"))
-    report_console(json_out).print(kv_table("trained", rows))
-    write_json(summary, json_out)
+    if distributed.is_main_process():  # one table and one JSON summary per run, not per rank
+        report_console(json_out).print(kv_table("trained", rows))
+        write_json(summary, json_out)
+
+
+def _without_nproc(args: list[str]) -> list[str]:
+    """The command line without ``--nproc N`` (torchrun's processes are started with the rest)."""
+    kept, skip = [], False
+    for arg in args:
+        if skip:
+            skip = False
+        elif arg == "--nproc":
+            skip = True
+        elif not arg.startswith("--nproc="):
+            kept.append(arg)
+    return kept
 
 
 def _obs_keys(text: str | None) -> tuple[str, ...]:

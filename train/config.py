@@ -92,7 +92,7 @@ class TrainConfig:
     seed: int = 0
     # ---- tuned per policy (None until resolved)
     steps: int | None = None  # optimiser steps
-    batch_size: int | None = None  # windows per batch
+    batch_size: int | None = None  # windows per batch, per process when data-parallel (global: N x this; lr unchanged)
     lr: float | None = None  # peak learning rate (AdamW, linear warm-up, cosine decay)
     weight_decay: float | None = None  # AdamW weight decay (not on biases and norms)
     warmup_steps: int | None = None

@@ -50,6 +50,8 @@ class Learner:
     phase_start: int = 0  # the LR schedule restarts at phase_start (DAgger rounds)
     phase_steps: int = 1
     device: torch.device = torch.device("cpu")
+    # The policy's loss under DistributedDataParallel in a data-parallel run (demo.train.distributed.wrap)
+    loss_module: torch.nn.Module | None = None
     _eval_copy: Policy | None = None
 
     def lr_at(self, step: int) -> float:
@@ -113,7 +115,8 @@ def train_step(learner: Learner, obs: Observation, action: torch.Tensor, pad: to
     if c.obs_noise > 0:
         obs = add_obs_noise(obs, c.obs_noise)
     with autocast(learner.device):
-        loss = policy.loss(obs, action, pad)
+        # Through DDP when data-parallel: its backward averages the gradients over the ranks.
+        loss = policy.loss(obs, action, pad) if learner.loss_module is None else learner.loss_module(obs, action, pad)
     learner.optimizer.zero_grad(set_to_none=True)
     loss.backward()
     if c.grad_clip > 0:

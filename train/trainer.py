@@ -45,6 +45,7 @@ from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import ActionSpec, EpisodeStore, StoreMeta
 from demo.train import checkpoint as ckpt
+from demo.train import distributed
 from demo.train.actor import ExecConfig
 from demo.train.config import TrainConfig
 from demo.train.data import TrainingData
@@ -100,11 +101,12 @@ class TrainingRun:
             encoder_config(config.encoder)
         except (TypeError, ValueError) as exc:
             raise DemoError("--encoder", str(exc)) from None
-        self.device = resolve_device(config.device)
+        # Under torchrun: this rank's group and device (demo.train.distributed); None in one process.
+        self.group, self.device = distributed.init_from_env(resolve_device(config.device))
         self.config = config
         self.out = Path(config.out)
         self.resume, self.overwrite, self.command = resume, overwrite, command
-        self.progress = or_silent(progress)
+        self.progress = or_silent(progress if self.is_main else None)  # rank 0 reports for all
         self.total_steps = total_steps or config.steps
         self.stage = f"train {name or config.algo}"  # the progress bar's label
         self.title = title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}"
@@ -113,7 +115,8 @@ class TrainingRun:
         torch.manual_seed(config.seed)
         self.rng = np.random.default_rng([config.seed, 0xB0C])
         self.metrics: dict[str, Any] = {"train_loss": [], "val_loss": [], "eval": []}
-        self.monitor = Monitor(config.eval_episodes, config.seed) if (config.eval_every or config.eval_final) else None
+        monitored = (config.eval_every or config.eval_final) and self.is_main
+        self.monitor = Monitor(config.eval_episodes, config.seed) if monitored else None
         self.learner: Learner | None = None
         self.data: TrainingData | None = None
         self.record: dict[str, Any] = {}
@@ -123,6 +126,11 @@ class TrainingRun:
         self._started = time.perf_counter()
         self._opened = False
         self._saved: dict[str, Any] | None = None  # the train state a resumed run continues from, read once
+
+    @property
+    def is_main(self) -> bool:
+        """Whether this process writes the run directory and reports (always, unless data-parallel rank > 0)."""
+        return self.group is None or self.group.is_main
 
     # ---------------------------------------------------------------------------- 1-3. set-up
     def __enter__(self) -> "TrainingRun":
@@ -135,6 +143,7 @@ class TrainingRun:
         finally:
             if self.monitor is not None:
                 self.monitor.close()
+            distributed.shutdown(self.group)
 
     def open_directory(self) -> None:
         """Create the run directory (once); with ``resume`` it must hold a train state, with
@@ -148,11 +157,16 @@ class TrainingRun:
                 raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
             self._saved = ckpt.load_train_state(out)  # one that cannot be resumed from is refused before any write
             return
-        if out.exists() and any(out.iterdir()):
+        stale = out.exists() and any(out.iterdir())
+        if stale:
             if not self.overwrite:
                 raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
             if not (out / ckpt.RUN_FILE).is_file():
                 raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
+        distributed.barrier(self.group)  # every rank has looked at the directory before rank 0 changes it
+        if not self.is_main:
+            return
+        if stale:
             shutil.rmtree(out)
         out.mkdir(parents=True, exist_ok=True)
 
@@ -183,6 +197,9 @@ class TrainingRun:
         seeds = np.concatenate([s.column("seed") if s.num_episodes else np.zeros(0, int) for s in stores])
         self.record = run_record(self.config, first.meta, data, learner, self.execution, self.command, algo_record, seeds)
         self.record["robot"] = records[0]
+        if self.group is not None:  # --batch-size is per process
+            self.record["data_parallel"] = {"processes": self.group.world,
+                                            "global_batch_size": self.group.world * self.config.batch_size}
         robots, robot_of = ckpt.distinct_robots(records)
         if len(stores) > 1:
             self.record["robots"] = robots
@@ -194,6 +211,8 @@ class TrainingRun:
             self.record["created"] = previous.get("created", self.record["created"])
             self.record["resumed"] = [*previous.get("resumed", []),
                                       {"at_step": int(self._saved["step"]), "command": self.command, "time": ckpt.now()}]
+        if not self.is_main:
+            return
         # The run carries its robots (config and files) so that it evaluates wherever it is moved.
         for i, robot in enumerate(robots):
             ckpt.save_robot(ckpt.robot_home(self.out, i), robot, stores[robot_of.index(i)].path)
@@ -236,8 +255,11 @@ class TrainingRun:
         logging the training loss and the loss on the data's fixed validation windows, evaluating
         every ``eval_every`` steps."""
         learner, c = self._attached(), self.config
+        if self.group is not None and learner.loss_module is None:
+            self._distribute(learner)
         windows = self.data.windows(self.data.train_episodes)
-        val_batch = self.data.validation_batch(c.seed)
+        val_batch = self.data.validation_batch(c.seed) if self.is_main else None  # rank 0 validates
+        world = 1 if self.group is None else self.group.world
         self.tick()
         running, count, t0 = torch.zeros(()), 0, time.perf_counter()
         if val_batch is not None and learner.step == 0 and not self.metrics.get("val_loss"):
@@ -247,11 +269,11 @@ class TrainingRun:
             count += 1
             step = learner.step
             if step % c.log_every == 0 or step == until:
-                mean = float(running / count)
+                mean = distributed.mean(float(running / count), self.group)  # over every rank's batches
                 if not math.isfinite(mean):
                     raise DemoError(c.out, f"training diverged (loss {mean} at step {step}); lower --lr")
                 self.metrics.setdefault("train_loss", []).append([step, mean])
-                rate = count * c.batch_size / max(time.perf_counter() - t0, 1e-9)
+                rate = count * c.batch_size * world / max(time.perf_counter() - t0, 1e-9)
                 running, count, t0 = torch.zeros(()), 0, time.perf_counter()
                 self.tick(loss=mean, info=f"{rate:,.0f} samples/s")
             if val_batch is not None and (step % c.val_every == 0 or step == until):
@@ -261,6 +283,14 @@ class TrainingRun:
             if self.monitor is not None and c.eval_every and step % c.eval_every == 0 and step != until:
                 self.evaluate()
                 self.checkpoint()
+
+    def _distribute(self, learner: Learner) -> None:
+        """Data-parallel from here on: the loss through DDP, and this rank's own batch and noise RNGs,
+        derived from (seed, rank, step) so that a resumed run may change the number of ranks."""
+        rank = self.group.rank
+        learner.loss_module = distributed.wrap(learner.policy, learner.device)
+        self.rng = np.random.default_rng([self.config.seed, 0xB0C, rank, learner.step])
+        torch.manual_seed(int(np.random.SeedSequence([self.config.seed, 0x7012C, rank, learner.step]).generate_state(1)[0]))
 
     def evaluate(self) -> dict[str, Any] | None:
         """Roll the attached learner out with the monitor (None without one); logged in ``metrics``."""
@@ -291,6 +321,8 @@ class TrainingRun:
         """Save the policy, the train state (with the algorithm's ``extra``), metrics and curves."""
         from demo.train.plots import plot_training
 
+        if not self.is_main:
+            return
         learner, data = self._attached(), self.data
         ckpt.save_policy(self.out, learner.eval_weights(), data.obs_norm, data.action_norm)
         ckpt.save_train_state(self.out, {
@@ -320,8 +352,10 @@ class TrainingRun:
             "expert_labels": self.record["data"]["expert_labels"],
             **final,
         }
-        ckpt.write_run(self.out, self.record)
+        if self.is_main:
+            ckpt.write_run(self.out, self.record)
         self.checkpoint(extra)
+        distributed.barrier(self.group)  # every rank returns once the run directory is complete
         data = self.record["data"]
         return {"out": str(self.out), "algo": self.record["algo"], **m["final"],
                 "train_episodes": len(data["train_episodes"]), "val_episodes": len(data["val_episodes"]),
