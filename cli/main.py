@@ -134,6 +134,8 @@ def _failure(exc: BaseException) -> int:
 
 
 def _print_error(where: str | None, problem: str) -> None:
+    if int(os.environ.get("RANK", "0") or 0) != 0:
+        return  # data-parallel ranks fail alike: rank 0's line speaks for all (torchrun names the failed ranks)
     # A Text, not markup: a message may hold brackets ("[7]", a file name) that rich would eat.
     text = Text.assemble(("error:", "bold red"), " ", one_line(f"{where}: {problem}" if where else problem))
     err_console.print(text, highlight=False, soft_wrap=True)  # soft_wrap: never broken at the terminal width

@@ -111,6 +111,9 @@ def train(
     if algo == "dagger" and max(nproc, distributed.env_world_size()) > 1:
         raise DemoError("--nproc", "dagger trains in one process (its rollouts and store are not data-parallel)")
     if nproc > 1 and distributed.env_world_size() == 1:  # not yet under torchrun: become its N processes
+        from demo.train.trainer import check_run_directory
+
+        check_run_directory(out, resume, overwrite)  # refused here in one line, not once per process
         raise typer.Exit(distributed.launch(_without_nproc(shlex.split(invocation())[1:]), nproc))
     given = dict(
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union

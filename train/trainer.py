@@ -153,16 +153,10 @@ class TrainingRun:
             return
         self._opened = True
         if self.resume:
-            if not (out / ckpt.STATE_FILE).is_file():
-                raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+            check_run_directory(out, resume=True, overwrite=False)
             self._saved = ckpt.load_train_state(out)  # one that cannot be resumed from is refused before any write
             return
-        stale = out.exists() and any(out.iterdir())
-        if stale:
-            if not self.overwrite:
-                raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
-            if not (out / ckpt.RUN_FILE).is_file():
-                raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
+        stale = check_run_directory(out, resume=False, overwrite=self.overwrite)
         distributed.barrier(self.group)  # every rank has looked at the directory before rank 0 changes it
         if not self.is_main:
             return
@@ -365,6 +359,22 @@ class TrainingRun:
         if self.learner is None or self.data is None:
             raise RuntimeError("no learner attached: call TrainingRun.begin first")
         return self.learner
+
+
+def check_run_directory(out: Path, resume: bool, overwrite: bool) -> bool:
+    """Refuse (DemoError) a run directory this run may not use; True when it holds an older run that
+    ``overwrite`` replaces. Read-only: callers (and a launcher, before its processes start) decide."""
+    if resume:
+        if not (out / ckpt.STATE_FILE).is_file():
+            raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+        return False
+    stale = out.exists() and any(out.iterdir())
+    if stale:
+        if not overwrite:
+            raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
+        if not (out / ckpt.RUN_FILE).is_file():
+            raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
+    return stale
 
 
 def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner: Learner, execution: ExecConfig,
