@@ -67,6 +67,10 @@ def _each(routine: Callable[[np.ndarray, np.ndarray], None], rows: np.ndarray, w
 def quat_to_mat(quat: np.ndarray) -> np.ndarray:
     """Unit quaternion(s) (w, x, y, z) [..., 4] -> rotation matrices [..., 3, 3] (``mju_quat2Mat``)."""
     q = np.ascontiguousarray(quat, dtype=np.float64)
+    if q.ndim == 1:  # one rotation (the experts' per-step case): no batch loop
+        out = np.empty(9)
+        mujoco.mju_quat2Mat(out, q)
+        return out.reshape(3, 3)
     return _each(mujoco.mju_quat2Mat, q.reshape(-1, 4), 9).reshape(*q.shape[:-1], 3, 3)
 
 
@@ -76,6 +80,10 @@ def mat_to_quat(mat: np.ndarray) -> np.ndarray:
     is MuJoCo's, see :func:`canonical`)."""
     R = np.ascontiguousarray(mat, dtype=np.float64)
     batch = R.shape[:-1] if R.shape[-1] == 9 else R.shape[:-2]
+    if not batch:  # one rotation (observations, experts): no batch loop
+        out = np.empty(4)
+        mujoco.mju_mat2Quat(out, R.reshape(9))
+        return out
     return _each(mujoco.mju_mat2Quat, R.reshape(-1, 9), 4).reshape(*batch, 4)
 
 

@@ -109,6 +109,7 @@ class ArmIK:
             self._row_limits.append(self.limits[-1])
         self._uses_mocap = bool(avoid_geoms) and m.nmocap > 0
         self._sense: np.ndarray | None = None  # daqp's constraint kinds (all inequalities)
+        self._no_rows = np.zeros((0, m.nv))  # G when no row limit is active
         self._target = np.zeros(7)  # wxyz_xyz scratch
         self.failures = 0
 
@@ -159,13 +160,13 @@ class ArmIK:
         if rows:
             G = np.vstack([r.G for r in rows])
             h = np.concatenate([r.h for r in rows])
-        else:
-            G, h = np.zeros((0, self.model.nv)), np.zeros(0)
-        n = self.model.nv + h.shape[0]
+            bupper = np.concatenate([upper, h])
+            blower = np.concatenate([lower, np.full(h.shape[0], -1e30)])
+        else:  # simple bounds only (most steps): the same problem without building empty rows
+            G, bupper, blower = self._no_rows, upper, lower
+        n = bupper.shape[0]
         if self._sense is None or self._sense.shape[0] != n:
             self._sense = np.zeros(n, dtype=ctypes.c_int)
-        bupper = np.concatenate([upper, h])
-        blower = np.concatenate([lower, np.full(h.shape[0], -1e30)])
         x, _, exitflag, _ = daqp.solve(H, c, G, bupper, blower, self._sense)
         return x if exitflag > 0 else None
 
