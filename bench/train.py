@@ -227,27 +227,20 @@ def _prepare(data: Path | None, build: Callable[[Path], None], seed: int,
         return config, training, time.perf_counter() - t0
 
 
-def _network_input(policy: VisuomotorPolicy, batch: Batch) -> tuple[torch.Tensor, list[torch.Tensor], torch.Tensor, torch.Tensor]:
+def _network_input(policy: VisuomotorPolicy, batch: Batch) -> tuple[torch.Tensor, dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
     """A batch as the network proper receives it: state, each camera's float images after the
-    encoder's own scaling and crop (``[B * n_obs, 3, ch, cw]``, contiguous), action, padding."""
+    encoder's own scaling and crop (:meth:`VisuomotorPolicy.preprocess`, made contiguous), action, padding."""
     obs, action, pad = batch
-    images = []
     with torch.no_grad():
-        for key, encoder in zip(policy.keys, policy.cameras.values()):
-            x = obs[key].flatten(0, 1).permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)
-            images.append(encoder.augment(x).contiguous())
-    return obs[STATE], images, action, pad
+        crops = {key: x.contiguous() for key, x in policy.preprocess(obs).items()}
+    return obs[STATE], crops, action, pad
 
 
-def _bare_loss(policy: VisuomotorPolicy, state: torch.Tensor, images: list[torch.Tensor], action: torch.Tensor,
+def _bare_loss(policy: VisuomotorPolicy, state: torch.Tensor, crops: dict[str, torch.Tensor], action: torch.Tensor,
                pad: torch.Tensor) -> torch.Tensor:
-    """The visuomotor loss from :func:`_network_input`'s tensors: backbone, keypoints and feature
-    layer per camera, concatenated with the state, the head's loss (VisuomotorPolicy.encode without
-    the uint8 -> float scaling and the crop)."""
-    b, t = state.shape[:2]
-    parts = [state] + [enc.out(enc.keypoints(enc.backbone(x))).reshape(b, t, -1).to(state.dtype)
-                       for enc, x in zip(policy.cameras.values(), images)]
-    return policy.head.loss(torch.cat(parts, dim=-1), action, pad)
+    """The visuomotor loss from :func:`_network_input`'s tensors: the policy's loss without the
+    uint8 -> float scaling and the crop (:meth:`VisuomotorPolicy.fuse`, then the head's loss)."""
+    return policy.head.loss(policy.fuse(state, crops), action, pad)
 
 
 def _float_bytes(policy: VisuomotorPolicy, batch: Batch) -> int:

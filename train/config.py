@@ -204,7 +204,10 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     unknown = sorted(set(given) - known)
     if unknown:
         raise TypeError(f"TrainConfig has no field {', '.join(unknown)}")
-    images = reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
+    # Only a setting still missing needs the store's cameras: a resolved config (the trainer resolves
+    # again what the CLI resolved) opens nothing.
+    image_tuned = {k for table in IMAGE_DEFAULTS.values() for k in table}
+    images = not image_tuned <= set(given) and reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
     values = {**policy_defaults(name, images), **given, "algo": name}
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])

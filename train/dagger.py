@@ -162,7 +162,7 @@ def make_env_for_store(store: EpisodeStore, task: str | None, robot: str | None 
     the store's cameras, so that a pixel policy's rollouts are stored like its demonstrations."""
     from demo.sim import make_env
     from demo.sim.robot_record import resolve_robot
-    from demo.train.observation import IMAGE_PREFIX, image_keys
+    from demo.train.observation import camera_list, image_keys
 
     t = store.meta.task or {}
     name = t.get("name")
@@ -172,7 +172,7 @@ def make_env_for_store(store: EpisodeStore, task: str | None, robot: str | None 
     if not task:
         raise DemoError(store.path, "records no task; pass --task")
     features = store.meta.features
-    cameras = [(k[len(IMAGE_PREFIX):], features[k].shape[1], features[k].shape[0]) for k in image_keys(features)]
+    cameras = camera_list((k, features[k].shape) for k in image_keys(features))
     env = make_env(task, robot=resolve_robot(store.meta.robot, robot, where=store.path), cameras=cameras,
                    **(t.get("options") or {}))
     if env.action_spec.name != store.meta.action.name or env.action_spec.dim != store.meta.action.dim:

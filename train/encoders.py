@@ -149,6 +149,13 @@ class CameraEncoder(nn.Module):
         self.keypoints = SpatialSoftmax(c, h, w, config.keypoints)
         self.out = nn.Sequential(nn.Linear(2 * config.keypoints, config.features), nn.LayerNorm(config.features), nn.ReLU())
 
+    def preprocess(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 ``[N, H, W, 3]`` -> the backbone's input: floats in [-1, 1], ``[N, 3, ch, cw]``, cropped."""
+        return self.augment(images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0))
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """:meth:`preprocess`'s output -> ``[N, features]``."""
+        return self.out(self.keypoints(self.backbone(x)))
+
     def forward(self, images: torch.Tensor) -> torch.Tensor:
-        x = images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)  # uint8 -> [-1, 1], channels first
-        return self.out(self.keypoints(self.backbone(self.augment(x))))
+        return self.features(self.preprocess(images))

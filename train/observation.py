@@ -26,7 +26,7 @@ as the difference of two inputs each normalised over half a metre.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,6 +114,11 @@ def quat_to_rot6d(q: np.ndarray) -> np.ndarray:
     return np.stack(col0 + col1, axis=-1).astype(np.float32)
 
 
+def camera_list(images: Iterable[tuple[str, Sequence[int]]]) -> list[tuple[str, int, int]]:
+    """``(key obs.image_<name>, shape [H, W, 3])`` pairs -> the cameras an environment renders: (name, width, height)."""
+    return [(key[len(IMAGE_PREFIX):], int(shape[1]), int(shape[0])) for key, shape in images]
+
+
 SHORTHANDS = {"all": low_dim_keys, "images": image_keys, "proprio": proprio_keys}
 
 
@@ -147,7 +152,7 @@ class ObsSpec:
 
     def cameras(self) -> list[tuple[str, int, int]]:
         """The cameras an environment must render for this policy: (name, width, height)."""
-        return [(k[len(IMAGE_PREFIX):], w, h) for k, (h, w, _) in zip(self.images, self.image_shapes)]
+        return camera_list(zip(self.images, self.image_shapes))
 
     @property
     def source_keys(self) -> list[str]:

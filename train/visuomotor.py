@@ -50,12 +50,19 @@ class VisuomotorPolicy(Policy):
 
     def encode(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         """``{state, camera keys}`` -> ``[B, n_obs, obs_dim + cameras * features]``."""
-        state = obs[STATE]
+        return self.fuse(obs[STATE], self.preprocess(obs))
+
+    def preprocess(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Each camera's uint8 images as its backbone takes them: ``[B * n_obs, 3, ch, cw]`` floats,
+        scaled and cropped (randomly in training)."""
+        return {key: encoder.preprocess(obs[key].flatten(0, 1)) for key, encoder in zip(self.keys, self.cameras.values())}
+
+    def fuse(self, state: torch.Tensor, crops: dict[str, torch.Tensor]) -> torch.Tensor:
+        """``state [B, n_obs, D]`` and :meth:`preprocess`'s crops -> the wrapped policy's observation."""
         b, t = state.shape[:2]
-        parts = [state]
-        for key, encoder in zip(self.keys, self.cameras.values()):
-            parts.append(encoder(obs[key].flatten(0, 1)).reshape(b, t, -1).to(state.dtype))
-        return torch.cat(parts, dim=-1)
+        parts = [encoder.features(crops[key]).reshape(b, t, -1).to(state.dtype)
+                 for key, encoder in zip(self.keys, self.cameras.values())]
+        return torch.cat([state, *parts], dim=-1)
 
     def loss(self, obs: dict[str, torch.Tensor], action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         return self.head.loss(self.encode(obs), action, action_pad)
