@@ -15,6 +15,11 @@ in ``rounds``: each round times the reference, then collection with 1 and with 2
 last reference closes the run; every figure is the best of its samples (as ``timeit`` reports the
 minimum time), the reference included, so a slow moment can flatter no ratio. All samples are in
 the JSON.
+
+``demo bench collect --executor ray`` (:func:`run_executors`) measures the executors instead: the
+same collection with 2 Ray actors and with 2 worker processes, alternating in each round, best of
+the rounds for both (Ray's start-up, like the pool's, is not counted), and checks that the two
+stores hold the same bytes.
 """
 
 from __future__ import annotations
@@ -27,10 +32,12 @@ from typing import Any
 
 from demo.bench.common import machine
 from demo.collect.scripted import CollectConfig, collect_scripted, make_env_for
+from demo.executor import ExecutorConfig
 from demo.sim.benchmark import expert_actions, replay_physics
 
 TARGET_RATIO_TO_PHYSICS = 0.5
 TARGET_TWO_WORKER_SPEEDUP = 1.7
+TARGET_RAY_TO_PROCESS = 0.9
 
 
 def raw_physics_rate(config: CollectConfig, seconds: float, episodes: int = 8) -> dict[str, float]:
@@ -60,13 +67,21 @@ def raw_physics_rate(config: CollectConfig, seconds: float, episodes: int = 8) -
     return {"control_steps_per_s": steps / physics_s, "mj_step_per_s": steps * n / physics_s, "n_substeps": n}
 
 
-def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict[str, float]:
+def collection_store(workdir: Path, executor: ExecutorConfig) -> Path:
+    """Where :func:`timed_collection` writes on ``executor``."""
+    return workdir / f"{executor.kind}{executor.workers}.zarr"
+
+
+def timed_collection(config: CollectConfig, workers: int, workdir: Path,
+                     executor: ExecutorConfig | None = None) -> dict[str, Any]:
+    """One collection into ``workdir`` with ``workers`` processes (or on ``executor``), timed per committed episode."""
+    executor = executor or ExecutorConfig("process", workers)
     stamps: list[tuple[float, float, int]] = []  # (time, this process's CPU time, frames committed so far) per episode
     start = time.perf_counter()
     result = collect_scripted(
         config,
-        workdir / f"w{workers}.zarr",
-        workers=workers,
+        collection_store(workdir, executor),
+        executor=executor,
         overwrite=True,
         progress=lambda tick: stamps.append((time.perf_counter(), time.process_time(), tick.fields["frames"]))
         if tick.done else None,
@@ -76,7 +91,8 @@ def timed_collection(config: CollectConfig, workers: int, workdir: Path) -> dict
     steady_frames = stamps[-1][2] - stamps[0][2]
     steady_s = stamps[-1][0] - first_t
     return {
-        "workers": workers,
+        "workers": executor.workers,
+        "executor": executor.kind,
         "episodes": result.episodes,
         "frames": result.frames,
         "success_rate": result.success_rate,
@@ -121,5 +137,39 @@ def run(task: str = "pick", episodes: int = 120, seconds: float = 3.0, seed: int
         "target_ratio_to_physics": TARGET_RATIO_TO_PHYSICS,
         "target_two_worker_speedup": TARGET_TWO_WORKER_SPEEDUP,
         "meets_targets": bool(ratio >= TARGET_RATIO_TO_PHYSICS and speedup >= TARGET_TWO_WORKER_SPEEDUP),
+        "machine": machine(),
+    }
+
+
+def run_executors(task: str = "pick", episodes: int = 120, seed: int = 0, rounds: int = 2, workers: int = 2,
+                  address: str | None = None) -> dict[str, Any]:
+    """Frames/s of the same collection on ``workers`` Ray actors (a local Ray, or the cluster at
+    ``address``) against ``workers`` local processes, alternating per round; best of each."""
+    from demo.store import EpisodeStore
+
+    config = CollectConfig(task=task, episodes=episodes, seed=seed)
+    executors = {"process": ExecutorConfig("process", workers), "ray": ExecutorConfig("ray", workers, address)}
+    samples: dict[str, list[dict[str, Any]]] = {name: [] for name in executors}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(rounds):
+            for name, executor in executors.items():
+                samples[name].append(timed_collection(config, workers, Path(tmp), executor))
+        crcs = [EpisodeStore.open(collection_store(Path(tmp), e)).column("crc32").tolist() for e in executors.values()]
+    best = {name: max(runs, key=lambda r: r["frames_per_s"]) for name, runs in samples.items()}
+    ratio = best["ray"]["frames_per_s"] / best["process"]["frames_per_s"]
+    return {
+        "benchmark": "collect",
+        "executor": "ray",
+        "task": task,
+        "workers": workers,
+        "rounds": rounds,
+        "address": address,
+        "process": best["process"],
+        "ray": best["ray"],
+        "samples": {name: [round(r["frames_per_s"], 1) for r in runs] for name, runs in samples.items()},
+        "ray_to_process": ratio,
+        "target_ray_to_process": TARGET_RAY_TO_PROCESS,
+        "same_bytes": crcs[0] == crcs[1],
+        "meets_target": bool(ratio >= TARGET_RAY_TO_PROCESS and crcs[0] == crcs[1]),
         "machine": machine(),
     }

@@ -1,15 +1,18 @@
 """`demo bench multimodal`: end-effector paths of two policies from the same start states (task ``avoid``).
 
+Any two runs of any registered policy (diffusion, ACT, BC with any ``--head``) trained on ``avoid``.
 For each of ``starts`` start states (``demo eval``'s seed stream, :func:`demo.seeds.eval_seeds`),
 each policy runs ``samples`` episodes that differ only in the seed of the policy's own sampling
-(the diffusion policy's start noise; an MSE policy is deterministic and repeats itself). Every
+(the diffusion policy's start noise, the GMM head's component, the discrete head's bins, ACT's
+latent with ``latent=sample``; an MSE policy, or ACT with its zero latent, is deterministic and
+repeats itself). Every
 episode is classified by the side on which the end-effector passes the obstacle: ``left`` (+y of
 the obstacle centre, base frame) or ``right``, taken where the EE crosses the obstacle's x, or
 ``none`` when it never gets past it. The PNG draws the paths from above (x forward, y left) per
 policy; the JSON has success and mode counts per policy and how many start states saw both modes.
 
-Figure: the diffusion run's success and mode coverage; reference, same run and start states: the
-MSE-BC run. The rollouts are the shared ones (:func:`demo.sim.rollout.rollout` through
+Figure: the first run's success and mode coverage (the CLI's ``--diffusion``, historically);
+reference, same run and start states: the second (e.g. MSE-BC). The rollouts are the shared ones (:func:`demo.sim.rollout.rollout` through
 :class:`demo.train.actor.PolicyActor`, torch on one thread), so success here is ``demo eval``'s
 success on these start states.
 """
@@ -67,7 +70,14 @@ def rollouts(run: str, starts: int, samples: int, seed: int, execute: int | None
                     })
     finally:
         env.close()
-    return {"run": run, "algo": bundle.algo, "execute": actor.execution.execute, "episodes": episodes}
+    return {"run": run, "algo": bundle.algo, "policy": policy_label(bundle), "execute": actor.execution.execute,
+            "episodes": episodes}
+
+
+def policy_label(bundle: Any) -> str:
+    """The algorithm, and BC's head where it is not the default (``bc gmm``)."""
+    head = getattr(bundle.policy.config, "head", "mse")
+    return bundle.algo if head == "mse" else f"{bundle.algo} {head}"
 
 
 def summarize(result: dict[str, Any], starts: int) -> dict[str, Any]:
@@ -79,6 +89,7 @@ def summarize(result: dict[str, Any], starts: int) -> dict[str, Any]:
     return {
         "run": result["run"],
         "algo": result["algo"],
+        "policy": result["policy"],
         "execute": result["execute"],
         "episodes": len(eps),
         "success_rate": float(np.mean([e["success"] for e in eps])) if eps else 0.0,
@@ -121,7 +132,7 @@ def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: s
             ax.tick_params(labelsize=7)
         m = summ["modes"]
         axes[row, 0].set_ylabel(
-            f"{summ['algo']} (execute {summ['execute']})\nsuccess {summ['success_rate']:.0%}, L {m['left']} / R {m['right']}"
+            f"{summ['policy']} (execute {summ['execute']})\nsuccess {summ['success_rate']:.0%}, L {m['left']} / R {m['right']}"
             f" / none {m['none']}\nboth sides from one start: {summ['starts_with_both_modes']}\ny - obstacle y (m)",
             fontsize=8,
         )
@@ -140,13 +151,13 @@ def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: s
     return save_figure(fig, path)
 
 
-def run(diffusion: str, reference: str, starts: int = 20, samples: int = 3, seed: int = 0, png: str | None = None,
+def run(figure: str, reference: str, starts: int = 20, samples: int = 3, seed: int = 0, png: str | None = None,
         execute: int | None = None, reference_execute: int | None = None) -> dict[str, Any]:
-    """Both runs from the same start states; ``execute``/``reference_execute`` override each run's
-    actions per chunk (default: the run's own)."""
+    """Both runs (any policies) from the same start states; ``execute``/``reference_execute`` override
+    each run's actions per chunk (default: the run's own)."""
     if starts < 1 or samples < 1:
         raise DemoError("--starts/--samples", "must be at least 1")
-    results = [rollouts(diffusion, starts, samples, seed, execute), rollouts(reference, starts, samples, seed, reference_execute)]
+    results = [rollouts(figure, starts, samples, seed, execute), rollouts(reference, starts, samples, seed, reference_execute)]
     summaries = [summarize(r, starts) for r in results]
     out: dict[str, Any] = {
         "benchmark": "multimodal",

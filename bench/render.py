@@ -34,10 +34,11 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from demo.bench.collect import timed_collection
+from demo.bench.collect import collection_store, timed_collection
 from demo.bench.common import machine
 from demo.collect.scripted import CollectConfig, make_env_for, start_seed
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig
 from demo.sim.benchmark import expert_actions
 from demo.sim.render import parse_camera
 from demo.store import EpisodeStore
@@ -121,7 +122,7 @@ def run(
         for _ in range(rounds):
             samples["reference"].append(bare_render_rate(config, controls, seconds))
             samples["collection"].append(timed_collection(config, workers, Path(tmp)))
-        with EpisodeStore.open(Path(tmp) / f"w{workers}.zarr") as store:
+        with EpisodeStore.open(collection_store(Path(tmp), ExecutorConfig("process", workers))) as store:
             sizes = store.summary()["camera_bytes"]
     samples["reference"].append(bare_render_rate(config, controls, seconds))
     if workers == 0:  # all the collection's work is this process's: its CPU time is comparable

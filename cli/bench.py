@@ -11,8 +11,9 @@ import typer
 
 from demo.bench.crossrobot import CrossRobotConfig
 from demo.bench.faults import FaultsConfig
+from demo.bench.policies import POLICIES
 from demo.cli.main import app
-from demo.cli.options import json_option
+from demo.cli.options import address_option, executor_option, json_option
 
 bench_app = typer.Typer(help="Benchmarks written as JSON (figure and reference from the same run).", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
@@ -51,25 +52,37 @@ def bench_collect(
     episodes: int = typer.Option(120, help="Episodes per measurement."),
     seconds: float = typer.Option(3.0, help="Timing budget of the raw-physics reference (s)."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
-    rounds: int = typer.Option(2, min=1, help="Rounds of reference + 1 worker + 2 workers; best of each is reported."),
+    rounds: int = typer.Option(2, min=1, help="Rounds of reference + 1 worker + 2 workers (--executor ray: 2 processes + "
+                                              "2 Ray actors); best of each is reported."),
+    executor: str = executor_option(),
+    address: str = address_option(),
 ) -> None:
-    """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene."""
-    from demo.bench.collect import run
+    """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene; --executor ray: 2 Ray
+    actors vs 2 worker processes."""
+    from demo.bench.collect import run, run_executors
     from demo.cli.output import kv_table, report_console, write_json
+    from demo.executor import ExecutorConfig
 
-    r = run(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds)
-    report_console(json_out).print(
-        kv_table(
-            f"bench collect ({task})",
-            [
-                ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
-                ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
-                ("collection frames/s, 2 workers", r["two_workers"]["frames_per_s"]),
-                ("ratio to physics (target >= 0.5)", r["ratio_to_physics"]),
-                ("2-worker speed-up (target >= 1.7)", r["two_worker_speedup"]),
-            ],
-        )
-    )
+    ExecutorConfig(executor, 2, address).check()
+    if executor == "ray":
+        r = run_executors(task=task, episodes=episodes, seed=seed, rounds=rounds, address=address)
+        title, rows = f"bench collect --executor ray ({task})", [
+            ("collection frames/s, 2 worker processes (reference)", r["process"]["frames_per_s"]),
+            ("collection frames/s, 2 Ray actors", r["ray"]["frames_per_s"]),
+            (f"ratio (target >= {r['target_ray_to_process']})",
+             f"{r['ray_to_process']:.2f}: {'met' if r['meets_target'] else 'NOT met'}"),
+            ("same bytes", r["same_bytes"]),
+        ]
+    else:
+        r = run(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds)
+        title, rows = f"bench collect ({task})", [
+            ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
+            ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
+            ("collection frames/s, 2 workers", r["two_workers"]["frames_per_s"]),
+            ("ratio to physics (target >= 0.5)", r["ratio_to_physics"]),
+            ("2-worker speed-up (target >= 1.7)", r["two_worker_speedup"]),
+        ]
+    report_console(json_out).print(kv_table(title, rows))
     write_json(r, json_out)
 
 
@@ -185,4 +198,44 @@ def bench_crossrobot(
     for name, line in r["refusals"].items():
         console.print(f"{name} refused: {line}", highlight=False, markup=False)
     console.print(f"target ({r['target']}): {'met' if r['meets_target'] else 'NOT met'}", highlight=False, markup=False)
+    write_json(r, json_out)
+
+
+@bench_app.command("policies")
+def bench_policies(
+    task: str = typer.Option("avoid", help="Task: avoid (bimodal: both sides measured) or pick."),
+    json_out: str = json_option(default="-"),
+    png: str = typer.Option(None, "--png", help="Where to draw the bars.", show_default="OUT/policies.png"),
+    out: str = typer.Option("policies", help="Working directory (store, runs); a rerun continues what is not complete."),
+    data: str = typer.Option(None, "--data", metavar="STORE", help="Train every policy on this store (never modified).",
+                             show_default="--episodes-demo collected demonstrations"),
+    episodes_demo: int = typer.Option(200, "--episodes-demo", help="Demonstrations to collect (without --data)."),
+    eval_episodes: int = typer.Option(100, "--eval-episodes", help="demo eval episodes per policy (seeds disjoint from "
+                                                                     "the data)."),
+    seed: int = typer.Option(0, help="Seed of collection, training and evaluation."),
+    policies: str = typer.Option(",".join(POLICIES), help="Policies, comma-separated, in table order."),
+    steps: int = typer.Option(None, help="Optimiser steps of every trained policy.",
+                              show_default="each one's demo train default"),
+    distil_steps: int = typer.Option(None, "--distil-steps", help="Optimiser steps of the one-step student.",
+                                     show_default="demo train --distil's"),
+    starts: int = typer.Option(20, help="avoid: start states of the both-sides measure."),
+    samples: int = typer.Option(3, help="avoid: episodes per start state, each with another sampling seed."),
+    latency_seconds: float = typer.Option(5.0, "--latency-seconds", help="Timing budget of the latency column (0 = skip)."),
+    workers: int = typer.Option(1, help="Processes for collection and evaluation."),
+    threads: int = typer.Option(1, help="Torch threads of each training."),
+) -> None:
+    """Every policy class on the same data and seeds: success, both sides (avoid), training time, latency; JSON + PNG."""
+    from demo.bench.policies import PoliciesConfig, format_rows, run
+    from demo.cli.output import report_console, table, write_json
+    from demo.cli.progress import bars
+
+    config = PoliciesConfig(out=out, task=task, data=data, episodes_demo=episodes_demo, eval_episodes=eval_episodes, seed=seed,
+                            policies=tuple(p.strip() for p in policies.split(",") if p.strip()), steps=steps,
+                            distil_steps=distil_steps, starts=starts, samples=samples, latency_seconds=latency_seconds,
+                            workers=workers, threads=threads, png=png)
+    with bars() as progress:
+        r = run(config, progress=progress)
+    report_console(json_out).print(table(f"bench policies ({task}, seed {seed}) -> {r['png']}",
+                                         ["policy", "success", "95% CI", "both sides", "training s (+teacher)", "ms/query"],
+                                         format_rows(r)))
     write_json(r, json_out)

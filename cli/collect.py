@@ -8,7 +8,7 @@ import typer
 from rich.text import Text
 
 from demo.cli.main import app
-from demo.cli.options import json_option, overwrite_option, robot_option
+from demo.cli.options import address_option, executor_option, json_option, overwrite_option, robot_option
 from demo.cli.output import err_console, kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
@@ -22,12 +22,16 @@ def task_options(blocks: int | None) -> dict:
 
 @app.command()
 def collect(
-    out: Path = typer.Option(..., "--out", "-o", metavar="STORE", help="Store directory to write (e.g. pick.zarr)."),
+    out: str = typer.Option(..., "--out", "-o", metavar="STORE", help="Store to write: a directory (e.g. pick.zarr) or a URL "
+                                                                       "(s3://bucket/pick.zarr)."),
     source: str = typer.Option("scripted", help=f"Where demonstrations come from: {', '.join(SOURCES)}."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
     episodes: int = typer.Option(50, help="Number of episodes (scripted; human sources record every input episode)."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states (and of all noise)."),
-    workers: int = typer.Option(1, help="Simulation processes feeding this (writer) process; 0 = all in this process."),
+    workers: int = typer.Option(1, help="Simulation processes (or Ray actors) feeding this (writer) process; 0 = all in "
+                                        "this process."),
+    executor: str = executor_option(),
+    address: str = address_option(),
     noise: float = typer.Option(0.0, help="DART noise: std (rad) added to executed joint targets; labels stay clean."),
     operator: str = typer.Option(
         None, help="scripted: simulated operator profile expert|good|okay|poor; human sources: a name.",
@@ -62,8 +66,9 @@ def collect(
     if source != "scripted":
         if input is None:
             raise DemoError("--input", f"--source {source} needs an input file (--input)")
-        if workers > 1 or noise > 0:
-            raise DemoError("--source", f"{source} replays recorded input: --workers > 1 and --noise do not apply")
+        if workers > 1 or noise > 0 or executor != "process" or address:
+            raise DemoError("--source", f"{source} replays recorded input: --workers > 1, --executor, --address and "
+                                        "--noise do not apply")
         if min_success is not None:
             raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
     robot_config = str(robot) if robot else None
@@ -71,11 +76,12 @@ def collect(
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":
             from demo.collect.scripted import CollectConfig, collect_scripted
+            from demo.executor import ExecutorConfig
 
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
                                    robot=robot_config, task_options=options, cameras=cameras)
-            result = collect_scripted(config, out, workers=workers, append=append, overwrite=overwrite,
-                                      progress=progress)
+            result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
+                                      overwrite=overwrite, progress=progress)
         else:
             human = dict(operator=operator, robot=robot_config, task_options=options, cameras=cameras, append=append,
                          overwrite=overwrite, progress=progress)

@@ -16,6 +16,7 @@ from demo.cli import diffusion  # noqa: F401,E402  (bench infer)
 from demo.cli import teleop  # noqa: F401,E402  (teleop, bench retarget)
 from demo.cli import train, eval  # noqa: F401,E402  (train, eval, bench train)
 from demo.cli import robot  # noqa: F401,E402  (robot check)
+from demo.cli import irl  # noqa: F401,E402  (irl train: PPO, GAIL, AIRL, linear IRL)
 
 NOT_BUILT = {
     "collect": ("Record demonstrations (scripted, kinesthetic, vr).", 3),

@@ -20,9 +20,9 @@ from demo.progress import Progress
 
 @app.command()
 def convert(
-    source: Path = store_argument("Store whose actions to convert (never modified)."),
+    source: str = store_argument("Store whose actions to convert (never modified)."),
     to: str = typer.Option(..., "--to", help="Target representation: joint_pos, joint_vel, ee_abs, ee_delta, ee7."),
-    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the converted store here.",
+    out: str = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the converted store here.",
                              show_default="none: only --check / --round-trip"),
     rotation: str = typer.Option(None, "--rotation", help="Rotation form: euler, rotvec, rot6d (ee_abs also quat).",
                                  show_default="the representation's own"),
@@ -60,7 +60,7 @@ def convert(
     write_json(results, json_out)
 
 
-def _selection(source: Path, mask: str | None, episodes: int | None) -> Any:
+def _selection(source: str, mask: str | None, episodes: int | None) -> Any:
     """The episodes --check/--round-trip read: the mask's (or all), then at most ``episodes`` of them."""
     from demo.store import EpisodeStore
 
@@ -71,7 +71,7 @@ def _selection(source: Path, mask: str | None, episodes: int | None) -> Any:
     return chosen if episodes is None else chosen[:episodes]
 
 
-def _run_convert(source: Path, out: Path, opts: Any, overwrite: bool, progress: Progress,
+def _run_convert(source: str, out: str, opts: Any, overwrite: bool, progress: Progress,
                  shown: Console) -> dict[str, Any]:
     from demo.convert.convert import convert_store
 
@@ -100,7 +100,7 @@ def _run_convert(source: Path, out: Path, opts: Any, overwrite: bool, progress: 
     return result.to_json()
 
 
-def _run_round_trip(source: Path, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
+def _run_round_trip(source: str, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
     from demo.convert.check import round_trip
 
     rt = round_trip(source, opts, episodes=selection, progress=progress)
@@ -118,7 +118,7 @@ def _run_round_trip(source: Path, opts: Any, selection: Any, progress: Progress,
     return rt.to_json()
 
 
-def _run_check(source: Path, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
+def _run_check(source: str, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
     from demo.convert.check import replay_check
 
     report = replay_check(source, opts, episodes=selection, progress=progress)

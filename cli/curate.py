@@ -32,8 +32,8 @@ def _threshold(value: str | None, flag: str) -> float | None:
 
 @app.command()
 def curate(
-    source: Path = store_argument("Store to curate (never modified, except by --mask)."),
-    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the kept (trimmed) episodes to this new store.",
+    source: str = store_argument("Store to curate (never modified, except by --mask)."),
+    out: str = typer.Option(None, "--out", "-o", metavar="STORE", help="Write the kept (trimmed) episodes to this new store.",
                              show_default="none"),
     mask: str = typer.Option(None, "--mask", metavar="NAME",
                              help="Write score.* columns, the drop reasons and mask.NAME (= kept) into the source store.",

@@ -1,4 +1,5 @@
-"""`demo eval RUN`: roll a trained policy out in the simulator and report success with a 95% interval."""
+"""`demo eval RUN`: roll a trained policy out in the simulator and report success with a 95% interval
+(``--record STORE``: and keep every rollout as an episode)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.options import device_option, json_option, robot_option, run_argument
+from demo.cli.options import address_option, device_option, executor_option, json_option, robot_option, run_argument
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 
@@ -23,7 +24,9 @@ def eval_(
                               "the (first) trained robot"),
     episodes: int = typer.Option(100, help="Episodes."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes (disjoint from collection seeds)."),
-    workers: int = typer.Option(1, help="Parallel worker processes (results do not depend on it)."),
+    workers: int = typer.Option(1, help="Parallel worker processes, or Ray actors (results do not depend on it)."),
+    executor: str = executor_option(),
+    address: str = address_option(),
     execute: int = typer.Option(None, help="Override: actions executed per chunk query.", show_default="the run's"),
     ensemble: float = typer.Option(None, help="Override: temporal ensembling decay (negative = off).",
                                    show_default="the run's"),
@@ -32,6 +35,10 @@ def eval_(
     video_episodes: int = typer.Option(4, help="Episodes in the video (tiled)."),
     video_size: int = typer.Option(128, help="Pixels per episode tile."),
     device: str = device_option(),
+    record: str = typer.Option(None, "--record", metavar="STORE", help="Append every rollout to this episode store "
+                               "(created if absent; same task, robot and observations) as an episode: source policy, "
+                               "columns run, success, outcome; curate it and train on its successes.",
+                               show_default="nothing stored"),
     json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
@@ -39,8 +46,9 @@ def eval_(
 
     config = EvalConfig(
         run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},
-        robot=robot or None, episodes=episodes, seed=seed, workers=workers, execute=execute,
-        ensemble=ensemble, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
+        robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,
+        execute=execute, ensemble=ensemble, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
+        record=record,
     )
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
         result = evaluate(config, progress=progress)
@@ -57,6 +65,8 @@ def eval_(
         ("seeds shared with training data", result["seeds_shared_with_training_data"]),
         ("seconds", f"{result['seconds']:.1f}"),
     ]
+    if "record" in result:
+        rows.append(("recorded", f"{result['record']['episodes']} episodes -> {result['record']['store']}"))
     if "video" in result:
         rows.append(("video", result["video"]["path"]))
     report_console(json_out).print(kv_table("evaluated", rows))

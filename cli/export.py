@@ -64,7 +64,7 @@ def print_report(report: InteropReport, shown: Console) -> None:
 
 @app.command()
 def export(
-    src: Path = store_argument(),
+    src: str = store_argument(),
     format: Format = typer.Option(..., "--format", "-f", help="lerobot (v3.0 folder) or robomimic (HDF5 file)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="PATH", help="Output folder (lerobot) or .hdf5 file (robomimic)."),
     mask: str = mask_option("Export only the episodes of this store mask (e.g. train)."),

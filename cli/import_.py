@@ -32,12 +32,17 @@ def detect_format(src: Path) -> Format:
 def import_(
     src: Path = typer.Argument(..., metavar="DATASET", help="LeRobot v3.0 dataset folder or robomimic .hdf5 file.",
                                show_default=False),
-    out: Path = typer.Option(..., "--out", "-o", metavar="STORE", help="Store directory to create (e.g. imported.zarr)."),
+    out: str = typer.Option(..., "--out", "-o", metavar="STORE", help="Store directory to create (e.g. imported.zarr)."),
     format: Format = typer.Option(None, "--format", "-f", help="lerobot or robomimic.", show_default="detected"),
     overwrite: bool = overwrite_option("an existing store at --out"),
     json_out: str = json_option("the report"),
 ) -> None:
     """Import a LeRobot v3.0 dataset or a robomimic HDF5 file into a new store."""
+    from demo.store.location import is_remote
+
+    if is_remote(out):  # staged and swapped in by rename: a local folder only
+        raise DemoError(out, "demo import writes a local store: import it here, then copy the folder to object "
+                             "storage (e.g. aws s3 cp --recursive)")
     format = format or detect_format(src)
     with bars() as progress:
         if format is Format.lerobot:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import typer
 from rich.table import Table
 
@@ -16,7 +14,7 @@ from demo.store import EpisodeStore
 
 @app.command()
 def info(
-    path: Path = store_argument(),
+    path: str = store_argument(),
     json_out: str = json_option("the summary"),
     check: bool = typer.Option(False, "--check", help="Read every frame and verify the per-episode checksums."),
 ) -> None:

@@ -1,8 +1,8 @@
 """The parameters every command spells the same way: ``STORE``, ``RUN``, ``--json FILE|-``, ``--overwrite``,
-``--mask NAME``, ``--robot``.
+``--mask NAME``, ``--robot``, ``--executor``/``--address``.
 
 Each function returns a fresh typer parameter (typer needs one object per use) so a command reads
-``store: Path = store_argument("Store to curate (never modified).")``.
+``store: str = store_argument("Store to curate (never modified).")``.
 """
 
 from __future__ import annotations
@@ -16,8 +16,9 @@ RUN = "RUN"
 JSON_HELP = "Write {what} as JSON to FILE; '-' prints it to stdout, which then holds only the JSON."
 
 
-def store_argument(help: str = "Episode store directory (e.g. pick.zarr).") -> Any:
-    """The positional store of a command that reads one."""
+def store_argument(help: str = "Episode store: a directory (e.g. pick.zarr) or a URL (s3://bucket/pick.zarr).") -> Any:
+    """The positional store of a command that reads one. Declare it ``str``, not ``Path``: a Path
+    would turn ``s3://bucket/x`` into ``s3:/bucket/x`` (see :mod:`demo.store.location`)."""
     return typer.Argument(..., metavar=STORE, help=help, show_default=False)
 
 
@@ -50,3 +51,17 @@ def robot_option(help: str = "Robot config TOML.", default: str = "the built-in 
 def device_option() -> Any:
     return typer.Option("auto", metavar="auto|cpu|cuda|mps",
                         help="Torch device: auto takes a CUDA GPU, else MPS, else the CPU (mixed precision on CUDA).")
+
+
+def executor_option() -> Any:
+    """``--executor process|ray``: where a command's ``--workers`` run (:mod:`demo.executor`)."""
+    return typer.Option("process", "--executor", metavar="process|ray",
+                        help="Where the --workers run: processes of this machine, or Ray actors on a Ray cluster "
+                             "(a local one unless --address; pip install -e '.[ray]'). Same results either way.")
+
+
+def address_option() -> Any:
+    """``--address ADDR``: the Ray cluster of ``--executor ray``."""
+    return typer.Option(None, "--address", metavar="ADDR",
+                        help="--executor ray: the Ray cluster to run on (e.g. auto, ray://HOST:10001).",
+                        show_default="a local Ray with --workers CPUs")

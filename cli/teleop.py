@@ -17,7 +17,7 @@ from demo.cli.output import console, err_console, kv_table, report_console, writ
 def teleop(
     mode: str = typer.Option("vr", help="kinesthetic (drag the backdrivable arm) or vr (move a hand gizmo)."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
-    out: Path = typer.Option(None, "--out", "-o", metavar="STORE", help="Store to append saved episodes to (created if missing).",
+    out: str = typer.Option(None, "--out", "-o", metavar="STORE", help="Store to append saved episodes to (created if missing).",
                              show_default="none: nothing is saved"),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
     operator: str = typer.Option("human", help="Who demonstrates (the episode table's operator column)."),

@@ -11,21 +11,23 @@ import typer
 from demo.bench.compounding import CompoundingConfig
 from demo.cli.bench import bench_app
 from demo.cli.main import app, invocation
-from demo.cli.options import device_option, json_option, overwrite_option, robot_option, store_argument
+from demo.cli.options import (address_option, device_option, executor_option, json_option, overwrite_option,
+                              robot_option, store_argument)
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.progress import Tick
 from demo.errors import DemoError
 
-ALGOS = ("bc", "dagger", "diffusion")
+FAMILY = ("dagger", "safedagger", "aggrevate", "dart", "perturb")  # rollouts + aggregation (demo.train.dagger.make_family)
+ALGOS = ("bc", *FAMILY, "diffusion", "act")
 
 
-def parse_policy_opts(items: list[str]) -> dict[str, str]:
+def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str, str]:
     opts = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise DemoError("--policy-opt", f"{item!r} is not KEY=VALUE (e.g. hidden=512,512)")
+            raise DemoError(flag, f"{item!r} is not KEY=VALUE (e.g. hidden=512,512)")
         opts[key.strip()] = value.strip()
     return opts
 
@@ -44,7 +46,7 @@ def _defaults(key: str) -> str:
 
 @app.command()
 def train(
-    stores: list[Path] = store_argument("Episode store to learn from (e.g. pick.zarr); never modified. Several: one policy "
+    stores: list[str] = store_argument("Episode store to learn from (e.g. pick.zarr); never modified. Several: one policy "
                                         "on their union (same task and action representation, e.g. two arms' ee7 stores)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (checkpoints, metrics, curves).",
                              show_default=False),
@@ -71,6 +73,8 @@ def train(
     crop: float = typer.Option(None, help="Random-crop side as a fraction of the image (centre crop at evaluation); 1 = off.",
                                show_default="0.875"),
     device: str = device_option(),
+    head: str = typer.Option(None, metavar="mse|gmm|discrete", help="bc, dagger: output head (= --policy-opt head=...): "
+                             "regression, Gaussian mixture or per-dimension bins over the chunk.", show_default="mse"),
     policy_opt: list[str] = typer.Option([], "--policy-opt", metavar="KEY=VALUE", help="Policy option (repeatable), e.g. hidden=512,512.",
                                          show_default="none"),
     train_mask: str = typer.Option(None, metavar="NAME", help="Train on this store mask's episodes only (e.g. a curated subset).",
@@ -89,27 +93,44 @@ def train(
     round_steps: int = typer.Option(2000, help="dagger: optimiser steps of the learner trained after each round."),
     warm_start: bool = typer.Option(False, "--warm-start", help="dagger: fine-tune the previous learner instead of training a new one per round."),
     beta: str = typer.Option("indicator", help="dagger: expert-mixing schedule indicator | linear:N | exp:P."),
-    gate: str = typer.Option(None, metavar="deviation:THRESH", help="HG-DAgger: the expert takes over and labels only where the learner strays by THRESH rad.",
-                             show_default="plain DAgger"),
+    gate: str = typer.Option(None, metavar="deviation:THRESH", help="HG-DAgger: the expert takes over and labels only where the learner strays by THRESH rad "
+                             "(safedagger: the deviation its classifier predicts).", show_default="plain DAgger"),
+    algo_opt: list[str] = typer.Option([], "--algo-opt", metavar="KEY=VALUE", help="safedagger (hidden, steps), aggrevate "
+                                       "(states, candidates, sigma, failure_cost), dart (alpha), perturb (sigma, tries): "
+                                       "the algorithm's own option (repeatable).", show_default="none"),
+    workers: int = typer.Option(1, help="dagger: rollout processes, or Ray actors (the episodes do not depend on it).",
+                                show_default="1: in this process"),
+    executor: str = executor_option(),
+    address: str = address_option(),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its last checkpoint."),
     overwrite: bool = overwrite_option("an existing run in --out"),
     json_out: str = json_option("the run summary"),
     nproc: int = typer.Option(1, "--nproc", help="Data-parallel processes (torchrun, DDP; --batch-size is per process).",
                               show_default="1: this process alone"),
+    distil: Path = typer.Option(None, "--distil", metavar="RUN", help="diffusion: distil this diffusion run into a one-step "
+                                "student on STORE (knowledge distillation of its DDIM sampler).", show_default="no teacher"),
 ) -> None:
-    """Train a policy on a store: bc (MLP, action chunks), dagger (with the task's expert), diffusion."""
+    """Train a policy on a store: bc (MLP, action chunks, --head), dagger and its family (safedagger, aggrevate, dart,
+    perturb: with the task's expert), diffusion, act (ACT)."""
     from demo.train import distributed
     from demo.train.bc import train as train_bc
     from demo.train.config import for_policy
 
     if algo not in ALGOS:
         raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
-    if algo == "dagger" and len(stores) > 1:
-        raise DemoError("--algo", "dagger trains on one store (it rolls out on one robot and aggregates into one store)")
+    if algo in FAMILY and len(stores) > 1:
+        raise DemoError("--algo", f"{algo} trains on one store (it rolls out on one robot and aggregates into one store)")
+    if algo not in FAMILY and (workers != 1 or executor != "process" or address):
+        raise DemoError("--workers", "--workers, --executor and --address run DAgger's rollouts: use them with --algo dagger")
+    if algo not in FAMILY and algo_opt:
+        raise DemoError("--algo-opt", f"sets an option of {', '.join(FAMILY[1:])}, not of {algo!r}")
     if nproc < 1:
         raise DemoError("--nproc", f"must be at least 1, got {nproc}")
-    if algo == "dagger" and max(nproc, distributed.env_world_size()) > 1:
-        raise DemoError("--nproc", "dagger trains in one process (its rollouts and store are not data-parallel)")
+    if distil is not None and (algo != "diffusion" or max(nproc, distributed.env_world_size()) > 1):
+        raise DemoError("--distil", "distils a diffusion run into a diffusion student in one process: use --algo diffusion, "
+                                    "without --nproc")
+    if algo in FAMILY and max(nproc, distributed.env_world_size()) > 1:
+        raise DemoError("--nproc", f"{algo} trains in one process (its rollouts and store are not data-parallel)")
     if nproc > 1 and distributed.env_world_size() == 1:  # not yet under torchrun: become its N processes
         from demo.train.trainer import check_run_directory
 
@@ -117,7 +138,7 @@ def train(
         raise typer.Exit(distributed.launch(_without_nproc(shlex.split(invocation())[1:]), nproc))
     given = dict(
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
-        out=str(out), policy=parse_policy_opts(policy_opt), seed=seed, steps=steps,
+        out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), seed=seed, steps=steps,
         batch_size=batch_size, lr=lr, weight_decay=weight_decay, warmup_steps=warmup, ema=ema, n_obs=n_obs,
         chunk=chunk, execute=execute, ensemble=ensemble, ensemble_decay=ensemble_decay, obs_keys=_obs_keys(obs_keys),
         obs_noise=obs_noise, relative_actions=not absolute_actions, train_mask=train_mask, val_mask=val_mask,
@@ -126,14 +147,24 @@ def train(
         robot=str(robot) if robot else None, device=device,
         encoder={k: v for k, v in (("backbone", encoder), ("crop", crop)) if v is not None},
     )
-    if algo == "dagger":
-        from demo.train.dagger import DaggerConfig, learner_config, train_dagger
+    if algo in FAMILY:
+        from demo.executor import ExecutorConfig
+        from demo.train.dagger import DaggerConfig, learner_config, make_family, train_dagger
 
         dconfig = DaggerConfig(train=learner_config(**given), task=task, rounds=rounds, episodes_per_round=episodes_per_round,
                                round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate)
         dconfig.check()
+        family = make_family(algo, parse_policy_opts(algo_opt, "--algo-opt"))
         with bars() as progress:
-            summary = train_dagger(dconfig, progress=progress, resume=resume, overwrite=overwrite, command=invocation())
+            summary = train_dagger(dconfig, executor=ExecutorConfig(executor, workers, address), progress=progress,
+                                   resume=resume, overwrite=overwrite, command=invocation(), family=family)
+    elif distil is not None:
+        from demo.train.config import TrainConfig
+        from demo.train.distill import train as train_distil
+
+        with bars() as progress:  # the student's settings are resolved from the teacher's
+            summary = train_distil(TrainConfig(algo=algo, **given), distil, progress=progress, resume=resume,
+                                   overwrite=overwrite, command=invocation())
     else:
         config = for_policy(algo, **given)
         config.check()
@@ -149,13 +180,23 @@ def train(
         ("rollout success", f"{summary['success_rate']:.0%}" if summary["success_rate"] is not None else "- (see demo eval)"),
         ("seconds", f"{summary['seconds']:.1f}"),
     ]
-    if algo == "dagger":
+    if algo in FAMILY:
         for r in summary["rounds"]:
             rows.append((f"round {r['round']}", f"labels {r['labels_total']}, rollout success "
-                         f"{'-' if r['rollout_success'] is None else format(r['rollout_success'], '.0%')}"))
+                         f"{'-' if r['rollout_success'] is None else format(r['rollout_success'], '.0%')}"
+                         + "".join(f", {k.replace('_', ' ')} {r[k]}" for k in ("takeovers", "sim_steps") if k in r)))
     if distributed.is_main_process():  # one table and one JSON summary per run, not per rank
         report_console(json_out).print(kv_table("trained", rows))
         write_json(summary, json_out)
+
+
+def _with_head(opts: dict[str, str], head: str | None, algo: str) -> dict[str, str]:
+    """``--head`` as the MLP's ``head`` option (BC's, and DAgger's learner's)."""
+    if head is None:
+        return opts
+    if algo not in ("bc", *FAMILY):
+        raise DemoError("--head", f"applies to bc and the dagger family (the MLP), not {algo!r}")
+    return {**opts, "head": head}
 
 
 def _without_nproc(args: list[str]) -> list[str]:
@@ -196,10 +237,18 @@ def bench_train(
     device: str = device_option(),
     threads: int = typer.Option(1, help="Torch threads (0 = torch's default)."),
     seed: int = typer.Option(0, help="Seed of the synthetic store, initialisation and batches."),
+    nproc: int = typer.Option(1, "--nproc", help="N >= 2: demo train --nproc N (DDP) against one process with N "
+                              "threads, same store, global samples/s (--steps, --batch-size per process)."),
+    steps: int = typer.Option(600, help="--nproc: optimiser steps of each demo train run."),
+    rounds: int = typer.Option(2, help="--nproc: alternating runs of each side."),
 ) -> None:
-    """Training samples/s with the real data pipeline vs the same model's bare forward/backward (state, or --images)."""
+    """Training samples/s with the real data pipeline vs the same model's bare forward/backward (state, or
+    --images); with --nproc N, data-parallel training vs one process."""
     from demo.bench.train import run, run_images
 
+    if nproc > 1:
+        _bench_train_parallel(json_out, nproc, data, frames, batch_size, steps, rounds, seed, device)
+        return
     try:
         sizes = tuple(int(h) for h in hidden.split(",")) if hidden else None
     except ValueError:
@@ -224,6 +273,23 @@ def bench_train(
     write_json(result, json_out)
 
 
+def _bench_train_parallel(json_out: str, nproc: int, data: Path | None, frames: int | None, batch_size: int | None,
+                          steps: int, rounds: int, seed: int, device: str) -> None:
+    from demo.bench.train_parallel import run_parallel
+
+    given = dict(data=data, frames=frames, batch_size=batch_size, steps=steps, rounds=rounds, seed=seed,
+                 device=device)
+    result = run_parallel(nproc, **{k: v for k, v in given.items() if v is not None})
+    report_console(json_out).print(kv_table(f"bench train --nproc {nproc} ({result['device']})", [
+        (f"{nproc} processes x 1 thread (DDP): samples/s", result["samples_per_s"]),
+        (f"1 process x {nproc} threads (reference): samples/s", result["reference_samples_per_s"]),
+        ("ratio", result["ratio_to_reference"]),
+        ("1 process x 1 thread: samples/s", result["one_thread_samples_per_s"]),
+        ("ratio to 1 thread", result["ratio_to_one_thread"]),
+    ]))
+    write_json(result, json_out)
+
+
 _C = CompoundingConfig()  # the experiment's defaults live in its config dataclass
 
 
@@ -231,31 +297,61 @@ _C = CompoundingConfig()  # the experiment's defaults live in its config datacla
 def bench_compounding(
     json_out: str = json_option("the results", default="-"),
     out: Path = typer.Option(Path(_C.out), help="Working directory (stores, runs, PNG); reruns reuse it."),
-    blocks: str = typer.Option(",".join(map(str, _C.blocks)), help="stack sizes (horizon 60 + 100 N steps)."),
+    task: str = typer.Option(_C.task, help="Task whose horizon --option sets."),
+    option: str = typer.Option(_C.option, help="The task option that sets the horizon (stack: repeat, horizon 60 + 100 N K; "
+                               "blocks, 60 + 100 N)."),
+    values: str = typer.Option(",".join(map(str, _C.values)), help="Values of --option, one horizon each."),
+    task_opt: list[str] = typer.Option([f"{k}={v}" for k, v in _C.task_options.items()], "--task-opt", metavar="KEY=VALUE",
+                                       help="The task's other options, fixed (repeatable)."),
+    methods: str = typer.Option(",".join(_C.methods), help="Methods to compare (hg_dagger always runs: it sets the label budget)."),
     seed: int = typer.Option(_C.seed, help="Seed of collection, training and evaluation."),
-    demos: int = typer.Option(_C.demos, help="DAgger's initial demonstrations."),
-    pool: int = typer.Option(_C.pool, help="Demonstrations collected per size at first (extended for BC's budget)."),
+    demos: int = typer.Option(_C.demos, help="The DAgger family's initial demonstrations."),
+    pool: int = typer.Option(_C.pool, help="Demonstrations collected per value at first (extended for the budgets)."),
     rounds: int = typer.Option(_C.rounds, help="DAgger rounds."),
     episodes_per_round: int = typer.Option(_C.episodes_per_round, help="DAgger rollouts per round."),
-    beta: str = typer.Option(_C.beta, help="DAgger expert-mixing schedule (plain DAgger)."),
-    gate: str = typer.Option(_C.gate, help="HG-DAgger gate; 'none' for plain DAgger (with --beta)."),
-    steps: int = typer.Option(_C.steps, help="Optimiser steps of BC and of DAgger's round 0."),
-    round_steps: int = typer.Option(_C.round_steps, help="DAgger optimiser steps per round."),
+    beta: str = typer.Option(_C.beta, help="Plain DAgger's expert-mixing schedule."),
+    gate: str = typer.Option(_C.gate, help="HG-DAgger's gate (SafeDAgger's deviation threshold)."),
+    steps: int = typer.Option(_C.steps, help="Optimiser steps of BC and of every family member's round 0."),
+    round_steps: int = typer.Option(_C.round_steps, help="Optimiser steps per DAgger round."),
     hidden: str = typer.Option(",".join(map(str, _C.hidden)), help="Hidden widths of every method's MLP."),
     batch_size: int = typer.Option(_C.batch_size, help="Windows per batch of every method."),
     chunk: int = typer.Option(_C.chunk, help="Chunk length of the chunked-BC line."),
+    noise: float = typer.Option(_C.noise, help="Fixed-noise DART line: noise on executed joint targets (rad)."),
+    val_fraction: float = typer.Option(_C.val_fraction, help="Held-out demonstrations (SafeDAgger's classifier, DART's noise)."),
+    candidates: int = typer.Option(_C.candidates, help="AggreVaTe: actions tried per labelled state (1: the expert's alone)."),
+    sigma: float = typer.Option(_C.sigma, help="AggreVaTe's exploration noise and perturbation's displacement (rad)."),
     eval_episodes: int = typer.Option(_C.eval_episodes, help="Evaluation episodes per policy."),
-    workers: int = typer.Option(_C.workers, help="Processes for collection and evaluation."),
+    workers: int = typer.Option(_C.workers, help="Processes for collection, rollouts and evaluation."),
 ) -> None:
-    """Compounding errors on stack: success vs horizon for BC, DAgger and chunked BC at equal expert labels."""
+    """Compounding errors: success vs horizon for BC, BC + chunking, DART and the DAgger family at equal expert labels."""
     from demo.bench.compounding import format_table, run
 
-    config = CompoundingConfig(out=str(out), blocks=tuple(int(b) for b in blocks.split(",")), seed=seed, demos=demos,
-                               pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta,
-                               gate=None if gate == "none" else gate, steps=steps,
-                               round_steps=round_steps, hidden=tuple(int(h) for h in hidden.split(",")), batch_size=batch_size,
-                               chunk=chunk, eval_episodes=eval_episodes, workers=workers)
+    def ints(flag: str, text: str) -> tuple[int, ...]:
+        try:
+            return tuple(int(x) for x in text.split(","))
+        except ValueError:
+            raise DemoError(flag, f"{text!r} is not a comma-separated list of integers") from None
+
+    fixed = {k: _number(v) for k, v in parse_policy_opts(task_opt, "--task-opt").items()}
+    config = CompoundingConfig(out=str(out), task=task, option=option, values=ints("--values", values), task_options=fixed,
+                               methods=tuple(m.strip() for m in methods.split(",") if m.strip()), seed=seed, demos=demos,
+                               pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta, gate=gate,
+                               steps=steps, round_steps=round_steps, hidden=ints("--hidden", hidden), batch_size=batch_size,
+                               chunk=chunk, noise=noise, val_fraction=val_fraction, candidates=candidates, sigma=sigma,
+                               eval_episodes=eval_episodes,
+                               workers=workers)
+    config.check()
     with bars() as progress:
         result = run(config, log=lambda text: progress(Tick("bench compounding", message=text)))
     report_console(json_out).print(format_table(result), highlight=False, markup=False)
     write_json(result, json_out)
+
+
+def _number(text: str) -> int | float | str:
+    """A task option's value as the number it spells, if it does."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text

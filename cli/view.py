@@ -15,7 +15,7 @@ from demo.cli.output import console, err_console
 
 @app.command()
 def view(
-    src: Path = store_argument(),
+    src: str = store_argument(),
     episode: int = typer.Option(0, "--episode", "-e", help="Episode shown first."),
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one; a busy one moves to the next)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (127.0.0.1: this machine only)."),

@@ -37,6 +37,7 @@ from demo.progress import Progress, or_silent
 from demo.seeds import episode_seed
 from demo.sim.rollout import Episode, StepCommand, rollout
 from demo.store import StoreMeta
+from demo.store.location import store_path
 
 HUMAN_SOURCES = ("kinesthetic", "vr")
 DEFAULT_OPERATOR = "human"
@@ -147,7 +148,7 @@ def record_episodes(
     ``run_episode`` returns ``(data, info)`` as ``store.append_episode`` takes them. ``progress``
     gets a ``collect_tick`` once the store is open and after each committed episode.
     """
-    out = Path(out)
+    out = store_path(out)
     report = or_silent(progress)
     env = make_env_for(config.collect_config())
     start = time.perf_counter()

@@ -1,7 +1,8 @@
 """`demo collect --source scripted`: demonstrations from the tasks' state-feedback experts.
 
-Episodes run in worker processes and come back to this process, the store's single writer, in
-episode order, so the store's bytes depend on the seed and not on the number of workers. Finished
+Episodes run in worker processes or Ray actors (:mod:`demo.executor`) and come back to this
+process, the store's single writer, in episode order, so the store's bytes depend on the seed and
+not on the executor or the number of workers. Finished
 episodes are committed as soon as they (and every episode before them) are back, several per
 commit when they arrive faster than one store write: Ctrl-C or a crash keeps every committed
 episode, and no episode is ever half-written.
@@ -20,7 +21,6 @@ The store's ``seed`` column is the reset seed: the two episodes of a pair share 
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -32,10 +32,12 @@ import numpy as np
 
 from demo.collect.operators import Operator, get_profile
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import episode_seed
 from demo.sim.rollout import Episode, StepCommand, recorded_features, rollout
 from demo.store import EpisodeStore, StoreMeta
+from demo.store.location import StorePath, store_path
 
 
 @dataclass
@@ -123,7 +125,7 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     return episode.data, info
 
 
-# -------------------------------------------------------------------------- worker processes
+# -------------------------------------------------------------------------- workers
 _worker_env: Any = None
 _worker_config: CollectConfig | None = None
 
@@ -144,16 +146,16 @@ EpisodeResult = tuple[int, dict[str, np.ndarray], dict[str, Any]]
 MAX_BATCH_FRAMES = 50_000
 
 
-def run_episodes(config: CollectConfig, workers: int) -> Iterator[list[EpisodeResult]]:
+def run_episodes(config: CollectConfig, executor: ExecutorConfig) -> Iterator[list[EpisodeResult]]:
     """Yield batches of ``(index, data, info)`` in episode order.
 
-    ``workers == 0`` simulates in this process, one episode per batch. ``workers >= 1`` simulates in
-    that many processes while this process only writes: each batch holds every episode that has
-    finished (in order) since the last one, so the per-write overhead of the store is shared by
-    all of them and never holds up the simulation.
+    ``process`` with 0 workers simulates in this process, one episode per batch. Otherwise the
+    workers simulate while this process only writes: each batch holds every episode that has
+    finished (in order) since the last one, up to :data:`MAX_BATCH_FRAMES` frames, so the per-write
+    overhead of the store is shared by all of them and never holds up the simulation.
     """
     indices = range(config.first_episode, config.first_episode + config.episodes)
-    if workers <= 0:
+    if executor.kind == "process" and executor.workers <= 0:
         env = make_env_for(config)
         try:
             for i in indices:
@@ -162,24 +164,17 @@ def run_episodes(config: CollectConfig, workers: int) -> Iterator[list[EpisodeRe
         finally:
             env.close()
         return
-    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL state; same behaviour on every OS
-    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(config,))
-    try:
-        results = pool.imap(_worker_run, indices, chunksize=1)
-        for first in results:
-            batch, frames = [first], len(first[1]["action"])
-            while frames < MAX_BATCH_FRAMES:
-                try:
-                    ready = results.next(timeout=0)
-                except (mp.TimeoutError, StopIteration):
-                    break
-                batch.append(ready)
-                frames += len(ready[1]["action"])
+    for ready in ordered_map(_worker_init, (config,), _worker_run, indices, executor, label=lambda i: f"episode {i}"):
+        batch: list[EpisodeResult] = []
+        frames = 0
+        for result in ready:
+            batch.append(result)
+            frames += len(result[1]["action"])
+            if frames >= MAX_BATCH_FRAMES:
+                yield batch
+                batch, frames = [], 0
+        if batch:
             yield batch
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
 
 
 def store_meta(config: CollectConfig, env: Any) -> StoreMeta:
@@ -199,14 +194,15 @@ def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items() if k != "episodes"}
 
 
-def open_output(out: Path, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
-    """Create the output store, or open it to append after checking it records the same thing.
+def open_output(out: str | StorePath, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
+    """Create the output store (a local path or a URL), or open it to append after checking it records the same thing.
 
     Either way the store's writer lock is held from the start (another writer, ``--overwrite``
     included, is refused); a refused append writes nothing. A created store replaces what was at
     ``out`` only with its first committed episode: close it with ``EpisodeStore.abandon`` (or leave
     a ``with`` block by the exception) when collection fails before then, and nothing is left.
     """
+    out = store_path(out)
     if append and out.exists():
         from demo.sim.robot_record import same_robot
 
@@ -283,20 +279,25 @@ def collect_scripted(
     out: str | Path,
     *,
     workers: int = 1,
+    executor: ExecutorConfig | None = None,
     append: bool = False,
     overwrite: bool = False,
     progress: Progress | None = None,
 ) -> CollectResult:
     """Collect ``config.episodes`` scripted episodes into the store at ``out``.
 
-    ``progress`` gets a :func:`collect_tick` once the store is open and after each committed episode.
+    Episodes run on ``executor`` (default: ``workers`` local processes; 0 = this process); the store
+    holds the same bytes whichever runs them. ``progress`` gets a :func:`collect_tick` once the
+    store is open and after each committed episode.
     """
     if config.episodes < 1:
         raise DemoError("--episodes", "must be at least 1")
     if config.noise < 0:
         raise DemoError("--noise", "must be >= 0")
+    executor = executor or ExecutorConfig("process", workers)
+    executor.check()
     get_profile(config.operator)
-    out = Path(out)
+    out = store_path(out)  # a local path or a URL (an unknown scheme or a missing backend fails here)
     env = make_env_for(config)
     try:
         meta = store_meta(config, env)
@@ -310,7 +311,7 @@ def collect_scripted(
         if append:
             config.first_episode = max(config.first_episode, _next_episode_index(store, config))
         report(collect_tick(config.task, 0, config.episodes, 0, 0, 0.0))
-        for batch in run_episodes(config, workers):
+        for batch in run_episodes(config, executor):
             store.append_episodes([(data, info) for _, data, info in batch])
             for _, data, info in batch:
                 done += 1

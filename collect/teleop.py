@@ -32,7 +32,6 @@ import io
 import threading
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -97,7 +96,7 @@ class TeleopSession:
         self._thread: threading.Thread | None = None
         try:
             if config.out is not None:
-                self.store = open_output(Path(config.out), human_store_meta(self.human, self.env), True, False)
+                self.store = open_output(config.out, human_store_meta(self.human, self.env), True, False)
             self.retargeter = Retargeter(self.env, config.ik) if config.mode == "vr" else None
             if config.mode == "kinesthetic":
                 self._soften_arm(config.soft_gain)

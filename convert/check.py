@@ -27,6 +27,7 @@ from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.sim.geometry import angle_between, quat_to_mat
 from demo.store import EpisodeStore
+from demo.store.location import store_path
 
 
 @dataclass
@@ -98,7 +99,7 @@ def replay_check(
     """
     from demo.sim import make_env
 
-    path = Path(path)
+    path = store_path(path)
     tell = or_silent(progress)
     with EpisodeStore.open(path) as store:
         meta = store.meta
@@ -169,7 +170,7 @@ def round_trip(path: str | Path, opts: ConvertOptions, *, episodes: Any = None,
 
     ``progress`` counts episodes (stage ``round trip``).
     """
-    path = Path(path)
+    path = store_path(path)
     tell = or_silent(progress)
     with EpisodeStore.open(path) as store:
         meta = store.meta

@@ -32,6 +32,7 @@ from demo.convert.representations import (
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
+from demo.store.location import StorePath, same_store, store_path
 
 IK_KEY = "info.ik_converged"
 BLOCK_FRAMES = 100_000  # frames converted (and committed) together
@@ -240,9 +241,9 @@ def convert_store(
     """
     started = time.perf_counter()
     report = or_silent(progress)
-    src_path, out = Path(src_path), Path(out)
+    src_path, out = store_path(src_path), store_path(out)
     with EpisodeStore.open(src_path) as store:
-        if out.resolve() == store.path.resolve():
+        if same_store(out, store.path):
             raise DemoError(out, "is the source store; write the conversion elsewhere")
         reps.get_representation(opts.to)
         meta = store.meta
@@ -328,7 +329,7 @@ def convert_store(
                          time.perf_counter() - started, anchor_sources, ik, check)
 
 
-def _context_for(meta: StoreMeta, where: Path, opts: ConvertOptions) -> RobotContext | None:
+def _context_for(meta: StoreMeta, where: StorePath, opts: ConvertOptions) -> RobotContext | None:
     """Load the robot when the conversion (or its anchors) needs one; None when it does not."""
     src_rep = reps.get_representation(meta.action.name, where / "zarr.json")
     dst_rep = reps.get_representation(opts.to)

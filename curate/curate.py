@@ -39,6 +39,7 @@ from demo.curate.signals import success as success_signals
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore
+from demo.store.location import StorePath, same_store, store_path
 
 ALL_SIGNALS: tuple[Signal, ...] = (
     *success_signals.SIGNALS,
@@ -220,7 +221,7 @@ def score_columns(curation: Curation, episodes: np.ndarray | None = None) -> dic
     return {f"score.{n}": np.asarray(curation.signals[n], dtype=np.float64)[sel] for n in names}
 
 
-def provenance_record(curation: Curation, source: Path, mask: str | None) -> dict[str, Any]:
+def provenance_record(curation: Curation, source: StorePath, mask: str | None) -> dict[str, Any]:
     counts = {code: sum(code in c for c in curation.codes) for code in REASONS}
     return {
         "op": "curate",
@@ -252,10 +253,10 @@ def curate(
     each episode was dropped, "" when kept). Neither: analyse only. ``progress``: one tick per
     step (stage ``curate``): :data:`STEPS`, then ``write`` when there is anything to write.
     """
-    source = Path(source)
+    source = store_path(source)
     if mask is not None and (not mask or not all(ch.isalnum() or ch in "_-" for ch in mask)):
         raise DemoError("--mask", f"mask name {mask!r} must be letters, digits, '_' or '-'")
-    if out is not None and Path(out).resolve() == source.resolve():
+    if out is not None and same_store(store_path(out), source):
         raise DemoError(out, "is the source store; curation never overwrites its input (use --mask NAME to mark it in place)")
     report = or_silent(progress)
     total = len(STEPS) + int(out is not None or mask is not None)

@@ -24,6 +24,7 @@ from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore, FeatureSpec, swap
 from demo.store.episode_table import FIXED_COLUMNS, MASK_PREFIX
+from demo.store.location import StorePath, same_store
 from demo.store.writer_lock import WriterLock
 
 T = TypeVar("T")
@@ -155,8 +156,8 @@ def staged_output(
         lock.release()
 
 
-def check_not_same(src: Path, out: Path) -> None:
-    if Path(src).resolve() == Path(out).resolve():
+def check_not_same(src: StorePath, out: StorePath) -> None:
+    if same_store(src, out):
         raise DemoError(out, "is the input; write the output elsewhere")
 
 

@@ -95,6 +95,7 @@ from demo.interop.untrusted import (
 from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.episode_store import EpisodeSelection
+from demo.store.location import store_path as locate_store
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -423,7 +424,7 @@ def export_lerobot(
     ``images``: ``"video"`` (MP4 files encoded with ``video``, LeRobot's default layout) or
     ``"embed"`` (PNG in the data parquet, lossless). ``progress``: a tick per episode written
     (stage ``export lerobot``)."""
-    store_path, out = Path(store_path), Path(out)
+    store_path, out = locate_store(store_path), Path(out)
     check_not_same(store_path, out)
     src = EpisodeStore.open(store_path)
     meta = src.meta

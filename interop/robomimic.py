@@ -65,6 +65,7 @@ from demo.interop.untrusted import (
 from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.episode_store import EpisodeSelection
+from demo.store.location import store_path as locate_store
 from demo.store.episode_table import MASK_PREFIX
 
 META_ATTR = "demo_meta"
@@ -114,7 +115,7 @@ def export_robomimic(
 
     ``progress``: a tick per episode written (stage ``export robomimic``)."""
     h5py = _h5py()
-    store_path, out = Path(store_path), Path(out)
+    store_path, out = locate_store(store_path), Path(out)
     check_not_same(store_path, out)
     src = EpisodeStore.open(store_path)
     meta = src.meta

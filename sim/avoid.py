@@ -80,7 +80,8 @@ class AvoidExpert(Expert):
         p = self.p
         obs_pos = task.obstacle(env)
         goal = task.goal(env)
-        ee, _ = env.ee_pose()
+        ee_pose = env.ee_pose()
+        ee = ee_pose[0]
         hx, hy, _ = OBSTACLE_HALF
         dy = ee[1] - obs_pos[1]
         if abs(dy) > hy + 0.02:
@@ -97,7 +98,7 @@ class AvoidExpert(Expert):
             # sideways to the front corner, creeping forward by `lead` m per m still to go sideways
             x = min(obs_pos[0] - hx - p.front, ee[0] + p.lead * abs(side_y - ee[1]))
             target = np.array([x, side_y, goal[2]])
-        return self.move(env, target, q, 0.0)
+        return self.move(env, target, q, 0.0, ee=ee_pose)
 
 
 class Avoid(Task):

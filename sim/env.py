@@ -33,6 +33,7 @@ import numpy as np
 from demo.errors import DemoError
 from demo.sim.geometry import canonical, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
+from demo.sim.numeric import clip
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
 from demo.sim.scene import compile_scene, scene_spec
@@ -65,6 +66,7 @@ class Env:
         self.fps = CONTROL_HZ
         self.seed: int | None = None
         self._bind_robot()
+        self._bind_views()
         self._ik: ArmIK | None = None
         self._obs_cache: tuple | None = None
         self.cameras.open(self.model)
@@ -80,6 +82,7 @@ class Env:
         m, r = self.model, self.robot
         jids = [m.joint(j).id for j in r.arm_joints]
         self.arm_qadr = np.array([m.jnt_qposadr[j] for j in jids])
+        self._arm_range = m.jnt_range[jids]
         self.arm_dadr = np.array([m.jnt_dofadr[j] for j in jids])
         acts = [arm_actuator_for(m, j, name, r.config_path) for j, name in zip(jids, r.arm_joints)]
         self.arm_act = np.array(acts)
@@ -107,6 +110,8 @@ class Env:
         )
         self._finger_mask = np.zeros(m.nbody, dtype=bool)
         self._finger_mask[self.finger_bodies] = True
+        # geom id -> the finger body it belongs to, or -1 (finger_contacts walks the few contacts in Python)
+        self._finger_body_of_geom = [int(b) if self._finger_mask[b] else -1 for b in m.geom_bodyid]
         self._base_rot_t = self.base.rot.T.copy()
         self._base_is_world = not self.base.pos.any() and bool(np.array_equal(self.base.quat, [1.0, 0.0, 0.0, 0.0]))
         self._base_quat_inv = quat_conj(self.base.quat)
@@ -120,9 +125,30 @@ class Env:
         self.home_ee_quat = quat_mul(self._base_quat_inv, mat_to_quat(scratch.site_xmat[self.ee_site]))
         self.home_yaw = yaw_of(self.home_ee_quat)
 
+    def _bind_views(self) -> None:
+        """What every control step reads and writes, resolved once: views into ``self.data`` (its
+        buffers live as long as it does), index sets as slices where they are contiguous (a view
+        instead of a gather), the state size."""
+        d = self.data
+        self._ctrl, self._qpos, self._qvel = d.ctrl, d.qpos, d.qvel
+        self._arm_q, self._arm_v = _as_slice(self.arm_qadr), _as_slice(self.arm_dadr)
+        arm_ctrl, self._grip_ctrl_idx = _as_slice(self.arm_act), _as_slice(self.grip_act)
+        self._ctrl_arm = d.ctrl[arm_ctrl] if isinstance(arm_ctrl, slice) else None  # a view, or None
+        self._ee_xpos, self._ee_xmat = d.site_xpos[self.ee_site], d.site_xmat[self.ee_site]
+        self._grip_len_span = self._grip_len_closed - self._grip_len_open
+        self._one_gripper = (
+            (int(self.grip_act[0]), float(self._grip_len_open[0]), float(self._grip_len_span[0]))
+            if self.grip_act.shape[0] == 1 else None
+        )
+        self._grip_span = self._grip_closed - self._grip_open
+        # One gripper actuator (most arms): its ctrl as a float, by the same IEEE operations.
+        self._one_grip_ctrl = (float(self._grip_open[0]), float(self._grip_span[0])) if self.grip_act.shape[0] == 1 else None
+        self._state_size = mujoco.mj_stateSize(self.model, _STATE)
+
     def _make_action_spec(self) -> ActionSpec:
         names = tuple(f"{j}.target" for j in self.robot.arm_joints) + ("gripper",)
         units = ("rad",) * self.robot.n_arm + ("1",)
+        self._action_shape = (len(names),)
         return ActionSpec(
             "joint_pos",
             names=names,
@@ -158,9 +184,8 @@ class Env:
         for jid, v in self._home.items():
             d.qpos[m.jnt_qposadr[jid]] = v
         q = d.qpos[self.arm_qadr] + rng.uniform(-1.0, 1.0, self.robot.n_arm) * self.task.arm_noise
-        self.set_arm(q)
+        self.set_arm(q)  # forwards: task.reset sees the arm's kinematics (the gripper ctrl moves nothing yet)
         d.ctrl[self.grip_act] = self._gripper_ctrl(self.robot.home_gripper)
-        mujoco.mj_forward(m, d)
         self.task.reset(self, rng)
         mujoco.mj_forward(m, d)
         return self.observe()
@@ -168,7 +193,7 @@ class Env:
     def set_arm(self, q: np.ndarray) -> None:
         """Place the arm at joint positions ``q`` at rest, holding them (for resets)."""
         m, d = self.model, self.data
-        lo = m.jnt_range[[m.joint(j).id for j in self.robot.arm_joints]]
+        lo = self._arm_range
         q = np.clip(q, lo[:, 0], lo[:, 1])
         d.qpos[self.arm_qadr] = q
         d.qvel[self.arm_dadr] = 0.0
@@ -176,13 +201,16 @@ class Env:
         mujoco.mj_forward(m, d)
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (self.action_spec.dim,):
+        a = np.asarray(action)  # float32 or float64: the ufuncs below compute in float64 either way
+        if a.shape != self._action_shape:
             raise DemoError("action", f"expected shape ({self.action_spec.dim},), got {a.shape}")
-        d = self.data
-        d.ctrl[self.arm_act] = self._arm_ctrl(a[:-1])
-        d.ctrl[self.grip_act] = self._gripper_ctrl(a[-1])
-        np.clip(d.ctrl, self._ctrl_lo, self._ctrl_hi, out=d.ctrl)
+        d, ctrl = self.data, self._ctrl
+        if self._ctrl_arm is not None:  # contiguous arm actuators: their ctrl computed in place
+            self._arm_ctrl(a[:-1], out=self._ctrl_arm)
+        else:
+            ctrl[self.arm_act] = self._arm_ctrl(a[:-1].astype(np.float64))
+        ctrl[self._grip_ctrl_idx] = self._gripper_ctrl(a[-1])
+        clip(ctrl, self._ctrl_lo, self._ctrl_hi, out=ctrl)
         mujoco.mj_step(self.model, d, nstep=self.n_substeps)
         self.task.after_step(self)
         obs = self.observe()
@@ -195,12 +223,16 @@ class Env:
         """Control steps since reset (from the simulation time)."""
         return int(round(self.data.time * self.fps))
 
-    def _arm_ctrl(self, q: np.ndarray) -> np.ndarray:
-        return q * self._arm_ctrl_scale + self._arm_ctrl_offset
+    def _arm_ctrl(self, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Arm actuator ctrl that holds joint targets ``q`` (``out``: written there)."""
+        return np.add(np.multiply(q, self._arm_ctrl_scale, out=out), self._arm_ctrl_offset, out=out)
 
-    def _gripper_ctrl(self, closedness: float) -> np.ndarray:
+    def _gripper_ctrl(self, closedness: float) -> np.ndarray | float:
         c = min(1.0, max(0.0, float(closedness)))
-        return self._grip_open + c * (self._grip_closed - self._grip_open)
+        if self._one_grip_ctrl is not None:
+            open_, span = self._one_grip_ctrl
+            return open_ + c * span
+        return self._grip_open + c * self._grip_span
 
     def success(self) -> bool:
         return bool(self.task.success(self))
@@ -209,9 +241,12 @@ class Env:
     def observe(self) -> dict[str, np.ndarray]:
         """Observations of the current state (``obs.*``).
 
-        The last result is reused while time, qpos, qvel and the mocap poses are unchanged, so
-        ``step()`` followed by ``frame()`` renders the cameras once.
+        With cameras, the last result is reused while time, qpos, qvel and the mocap poses are
+        unchanged, so ``step()`` followed by ``frame()`` renders the cameras once. Without, the
+        observations cost less than that check and are computed afresh.
         """
+        if not self.cameras.specs:
+            return self._observe()
         d = self.data
         c = self._obs_cache
         if (
@@ -228,11 +263,10 @@ class Env:
         return dict(out)
 
     def _observe(self) -> dict[str, np.ndarray]:
-        d = self.data
         pos, quat = self.ee_pose()
         out = {
-            "obs.joint_pos": d.qpos[self.arm_qadr].astype(np.float32),
-            "obs.joint_vel": d.qvel[self.arm_dadr].astype(np.float32),
+            "obs.joint_pos": self._qpos[self._arm_q].astype(np.float32),
+            "obs.joint_vel": self._qvel[self._arm_v].astype(np.float32),
             "obs.gripper": np.array([self.gripper_closedness()], dtype=np.float32),
             "obs.ee_pos": pos.astype(np.float32),
             "obs.ee_quat": canonical(quat).astype(np.float32),
@@ -253,17 +287,18 @@ class Env:
         return out
 
     def gripper_closedness(self) -> float:
+        if self._one_gripper is not None:  # one actuator: its value, in float arithmetic (the same IEEE operations)
+            a, length_open, span = self._one_gripper
+            return (float(self.data.actuator_length[a]) - length_open) / span
         length = self.data.actuator_length[self.grip_act]
-        each = (length - self._grip_len_open) / (self._grip_len_closed - self._grip_len_open)
-        return float(each[0]) if each.shape[0] == 1 else float(each.mean())  # one actuator: its value, bit for bit
+        return float(((length - self._grip_len_open) / self._grip_len_span).mean())
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """EE site pose in the base frame: position (m) and quaternion (wxyz)."""
-        d = self.data
         if self._base_is_world:
-            return d.site_xpos[self.ee_site].copy(), mat_to_quat(d.site_xmat[self.ee_site])
-        pos = self._base_rot_t @ (d.site_xpos[self.ee_site] - self.base.pos)
-        quat = quat_mul(self._base_quat_inv, mat_to_quat(d.site_xmat[self.ee_site]))
+            return self._ee_xpos.copy(), mat_to_quat(self._ee_xmat)
+        pos = self._base_rot_t @ (self._ee_xpos - self.base.pos)
+        quat = quat_mul(self._base_quat_inv, mat_to_quat(self._ee_xmat))
         return pos, quat
 
     def body_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
@@ -301,20 +336,18 @@ class Env:
 
     def finger_contacts(self, geom_mask: np.ndarray) -> int:
         """How many distinct finger bodies touch a geom selected by the boolean ``geom_mask``."""
-        geom = self.data.contact.geom
-        if geom.shape[0] == 0:
-            return 0
-        body = self.model.geom_bodyid[geom]
-        fm = self._finger_mask
-        hit1 = fm[body[:, 0]] & geom_mask[geom[:, 1]]
-        hit2 = fm[body[:, 1]] & geom_mask[geom[:, 0]]
-        if not (hit1.any() or hit2.any()):
-            return 0
-        return len(set(body[hit1, 0].tolist()) | set(body[hit2, 1].tolist()))
+        finger = self._finger_body_of_geom
+        touching: set[int] = set()
+        for g1, g2 in self.data.contact.geom.tolist():  # a handful of contacts: a loop beats array ops
+            if finger[g1] >= 0 and geom_mask[g2]:
+                touching.add(finger[g1])
+            if finger[g2] >= 0 and geom_mask[g1]:
+                touching.add(finger[g2])
+        return len(touching)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> np.ndarray:
-        s = np.empty(mujoco.mj_stateSize(self.model, _STATE))
+        s = np.empty(self._state_size)
         mujoco.mj_getState(self.model, self.data, s, _STATE)
         return s
 
@@ -339,7 +372,9 @@ class Env:
         """Arm joint targets one control step toward an EE pose given in the base frame."""
         ik = self.ik
         d = self.data
-        ik.set_state(d.qpos[self.arm_qadr], d.mocap_pos, d.mocap_quat)
+        ik.set_state(self._qpos[self._arm_q], d.mocap_pos, d.mocap_quat)
+        if self._base_is_world:  # ik.step only reads them: no copies
+            return ik.step(pos, quat)
         return ik.step(self.to_world(pos), self.quat_to_world(quat))
 
     def place_ee(self, pos: np.ndarray, quat: np.ndarray) -> None:
@@ -360,6 +395,13 @@ class Env:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as the equivalent slice when it is a contiguous increasing run, else unchanged."""
+    if index.shape[0] and np.array_equal(index, np.arange(index[0], index[0] + index.shape[0])):
+        return slice(int(index[0]), int(index[0]) + index.shape[0])
+    return index
 
 
 def make_env(

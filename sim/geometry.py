@@ -37,6 +37,8 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
+from demo.sim.numeric import norm
+
 ROTATION_DIMS: dict[str, int] = {"euler": 3, "rotvec": 3, "rot6d": 6, "quat": 4}
 ROTATION_NAMES: dict[str, tuple[str, ...]] = {
     "euler": ("roll", "pitch", "yaw"),
@@ -82,7 +84,7 @@ def mat_to_quat(mat: np.ndarray) -> np.ndarray:
     batch = R.shape[:-1] if R.shape[-1] == 9 else R.shape[:-2]
     if not batch:  # one rotation (observations, experts): no batch loop
         out = np.empty(4)
-        mujoco.mju_mat2Quat(out, R.reshape(9))
+        mujoco.mju_mat2Quat(out, R if R.ndim == 1 else R.reshape(9))
         return out
     return _each(mujoco.mju_mat2Quat, R.reshape(-1, 9), 4).reshape(*batch, 4)
 
@@ -98,8 +100,13 @@ def quat_conj(q: np.ndarray) -> np.ndarray:
     return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])  # q * _CONJ: quat_conj's numbers (x * -1.0 == -x exactly), one operation
+
+
 def canonical(q: np.ndarray) -> np.ndarray:
     """The same rotation(s) with w >= 0 (q and -q are one rotation; observations use this sign)."""
+    if q.ndim == 1:  # one quaternion (observations): the same choice without broadcasting
+        return -q if q[0] < 0 else q.copy()
     return np.where(q[..., :1] < 0, -q, q)
 
 
@@ -111,7 +118,7 @@ def quat_angle(a: np.ndarray, b: np.ndarray) -> float:
 
 def axis_angle_quat(axis: np.ndarray, angle: float) -> np.ndarray:
     axis = np.asarray(axis, dtype=np.float64)
-    n = float(np.linalg.norm(axis))
+    n = norm(axis)
     if n < 1e-12 or angle == 0.0:
         return np.array([1.0, 0.0, 0.0, 0.0])
     s = math.sin(angle / 2) / n
@@ -120,16 +127,17 @@ def axis_angle_quat(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def quat_step(current: np.ndarray, target: np.ndarray, max_angle: float) -> np.ndarray:
     """Rotate ``current`` toward ``target`` by at most ``max_angle`` rad (shortest way)."""
-    diff = quat_mul(target, quat_conj(current))
-    if diff[0] < 0:
-        diff = -diff
-    angle = 2.0 * math.acos(min(1.0, diff[0]))
+    diff = quat_mul(target, np.asarray(current, dtype=np.float64) * _CONJ)
+    w = float(diff[0])
+    if w < 0:
+        diff, w = -diff, -w
+    angle = 2.0 * math.acos(min(1.0, w))
     if angle <= max_angle:
         return np.array(target, dtype=np.float64)
     axis = diff[1:]
     step = axis_angle_quat(axis, max_angle)
     out = quat_mul(step, current)
-    return out / np.linalg.norm(out)
+    return out / norm(out)
 
 
 # ---------------------------------------------------------------------------------------------- euler
@@ -279,9 +287,8 @@ def angle_between(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
 def down_quat(yaw: float) -> np.ndarray:
     """EE orientation pointing down (site z = -z) with site x = (cos yaw, sin yaw, 0)."""
     c, s = math.cos(yaw), math.sin(yaw)
-    # columns: x = (c, s, 0), y = z cross x = (s, -c, 0), z = (0, 0, -1)
-    mat = np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
-    return mat_to_quat(mat)
+    # columns: x = (c, s, 0), y = z cross x = (s, -c, 0), z = (0, 0, -1); row-major, flat
+    return mat_to_quat(np.array([c, s, 0.0, s, -c, 0.0, 0.0, 0.0, -1.0]))
 
 
 def yaw_of(quat: np.ndarray) -> float:

@@ -76,9 +76,9 @@ class BoxState:
 
 def box_yaw(quat: np.ndarray) -> float:
     """Heading of the box's most horizontal axis (a box looks the same every 90 deg)."""
-    m = quat_to_mat(quat)
-    k = int(np.argmin(np.abs(m[2])))  # the body axis (column) with the least vertical component
-    return math.atan2(m[1, k], m[0, k])
+    m = quat_to_mat(quat).tolist()
+    k = min(range(3), key=lambda j: abs(m[2][j]))  # the body axis (column) with the least vertical component (first of equals)
+    return math.atan2(m[1][k], m[0][k])
 
 
 def grasp_yaw(env: "Env", box: BoxState, offset: float, others: Sequence[np.ndarray] = (), reference: float | None = None) -> float:
@@ -106,11 +106,12 @@ def grasp_yaw(env: "Env", box: BoxState, offset: float, others: Sequence[np.ndar
     return best + offset
 
 
-def in_hand(env: "Env", box: BoxState) -> tuple[bool, bool]:
-    """(between the fingers, held): held = between and touched by two finger bodies."""
-    ee_pos, ee_quat = env.ee_pose()
-    rel = quat_to_mat(ee_quat).T @ (box.pos - ee_pos)
-    between = abs(rel[0]) < 0.02 and abs(rel[1]) < box.half + 0.01 and abs(rel[2]) < 0.6 * box.half + 0.01
+def in_hand(env: "Env", box: BoxState, ee: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[bool, bool]:
+    """(between the fingers, held): held = between and touched by two finger bodies.
+    ``ee``: ``env.ee_pose()``, when the caller has it already."""
+    ee_pos, ee_quat = env.ee_pose() if ee is None else ee
+    x, y, z = np.dot(quat_to_mat(ee_quat).T, box.pos - ee_pos).tolist()  # box centre in the EE frame (R^T @ d)
+    between = abs(x) < 0.02 and abs(y) < box.half + 0.01 and abs(z) < 0.6 * box.half + 0.01
     return between, between and env.finger_contacts(box.geom_mask) >= 2
 
 
@@ -123,6 +124,7 @@ def approach_and_grasp(
     yaw_offset: float = 0.0,
     others: Sequence[np.ndarray] = (),
     funnel: float = 0.0,
+    ee: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray | None:
     """The action that brings the open gripper above the box, down around it, and closes it.
 
@@ -130,12 +132,14 @@ def approach_and_grasp(
     the height (base frame) from which the gripper descends; ``depth`` shifts the grasp point up
     (+) or down (-) from the box centre; ``others`` are positions the hand should keep clear of.
     ``funnel`` > 0 descends through a funnel of that slope (:func:`funnel_target`) instead of
-    "over, then straight down; back up if off" (a stepwise rule with hysteresis).
+    "over, then straight down; back up if off" (a stepwise rule with hysteresis). ``ee``:
+    ``env.ee_pose()``, when the caller has it already.
     """
-    between, held = in_hand(env, box)
+    ee = env.ee_pose() if ee is None else ee
+    between, held = in_hand(env, box, ee)
     if held:
         return None
-    ee_pos, ee_quat = env.ee_pose()
+    ee_pos, ee_quat = ee
     closed = env.gripper_closedness()
     if funnel > 0:
         # The face pair nearest the current heading (a turn of at most 45 deg): a function of the
@@ -145,26 +149,27 @@ def approach_and_grasp(
         q = down_quat(grasp_yaw(env, box, yaw_offset, others))
     grasp = box.pos + np.array([0.0, 0.0, depth])
     if between and CLOSING < closed < EMPTY:
-        return expert.move(env, ee_pos, q, 1.0)  # fingers closing on the box: hold still
-    xy_err = math.hypot(ee_pos[0] - grasp[0], ee_pos[1] - grasp[1])
+        return expert.move(env, ee_pos, q, 1.0, ee=ee)  # fingers closing on the box: hold still
+    (ex, ey, ez), (gx, gy, gz) = ee_pos.tolist(), grasp.tolist()  # scalars as floats: the same arithmetic
+    xy_err = math.hypot(ex - gx, ey - gy)
     ang = quat_angle(ee_quat, q)
-    z_err = ee_pos[2] - grasp[2]
+    z_err = ez - gz
     if between and xy_err < GRASP_TOL and abs(z_err) < GRASP_TOL and ang < 0.15:
-        return expert.move(env, grasp, q, 1.0)  # in place: close
-    pre_z = max(approach_z, grasp[2] + 0.02)
+        return expert.move(env, grasp, q, 1.0, ee=ee)  # in place: close
+    pre_z = max(approach_z, gz + 0.02)
     if closed > CLOSING:
         # Closed on nothing (or the box slipped): open while backing up to the approach height.
-        return expert.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], min(pre_z, ee_pos[2] + 0.05))]), q, 0.0)
+        return expert.move(env, np.array([ex, ey, max(ez, min(pre_z, ez + 0.05))]), q, 0.0, ee=ee)
     if funnel > 0:
-        lift = _clamp01((ee_pos[2] - (pre_z - 0.03)) / 0.03)
+        lift = _clamp01((ez - (pre_z - 0.03)) / 0.03)
         speed = funnel_speed(float(np.linalg.norm(ee_pos - grasp)))
-        return expert.move(env, funnel_target(ee_pos, grasp, pre_z, lift, funnel, ang), q, 0.0, speed=speed)
-    low = ee_pos[2] < pre_z - 0.004  # below the approach height: descending (hysteresis)
+        return expert.move(env, funnel_target(ee_pos, grasp, pre_z, lift, funnel, ang), q, 0.0, speed=speed, ee=ee)
+    low = ez < pre_z - 0.004  # below the approach height: descending (hysteresis)
     if xy_err < (0.025 if low else 0.02) and ang < (0.2 if low else 0.15):
-        return expert.move(env, grasp, q, 0.0)  # above the box: descend
+        return expert.move(env, grasp, q, 0.0, ee=ee)  # above the box: descend
     if low:
-        return expert.move(env, np.array([ee_pos[0], ee_pos[1], pre_z]), q, 0.0)  # clear the objects first
-    return expert.move(env, np.array([grasp[0], grasp[1], pre_z]), q, 0.0)  # over to the box
+        return expert.move(env, np.array([ex, ey, pre_z]), q, 0.0, ee=ee)  # clear the objects first
+    return expert.move(env, np.array([gx, gy, pre_z]), q, 0.0, ee=ee)  # over to the box
 
 
 def carry_and_place(
@@ -176,6 +181,7 @@ def carry_and_place(
     clearance: float,
     drop: float = 0.004,
     funnel: float = 0.0,
+    ee: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """The action that carries a held box to rest its centre at ``place`` and lets go there.
 
@@ -185,9 +191,11 @@ def carry_and_place(
     gripper opens once the box is within ``drop`` (m) of its resting height. The grasp offset (box
     centre vs TCP) is read from the state, so a box held off-centre still lands where it should.
     ``funnel`` > 0: the box comes down through a funnel of that slope (:func:`funnel_target`),
-    travelling sideways only as far as its bottom is clear of ``others_top``.
+    travelling sideways only as far as its bottom is clear of ``others_top``. ``ee``:
+    ``env.ee_pose()``, when the caller has it already.
     """
-    ee_pos, ee_quat = env.ee_pose()
+    ee = env.ee_pose() if ee is None else ee
+    ee_pos, ee_quat = ee
     offset = ee_pos - box.pos  # TCP relative to the box centre, kept while carrying
     q = down_quat(yaw_of(ee_quat))  # keep the heading it was grasped with
     xy_err = math.hypot(box.pos[0] - place[0], box.pos[1] - place[1])
@@ -198,20 +206,20 @@ def carry_and_place(
         # stops the box): the downward label stays a clear step until the release, so an imitator's
         # blurred version of it does not stall just above the place.
         if box.pos[2] < place[2] + FUNNEL_DROP and xy_err < GRASP_TOL:
-            return expert.move(env, ee_pos, q, 0.0)  # in place: open
+            return expert.move(env, ee_pos, q, 0.0, ee=ee)  # in place: open
         lift = _clamp01((box.pos[2] - box.half - others_top) / clearance)
         goal = place - np.array([0.0, 0.0, 0.01])
         target = funnel_target(box.pos, goal, carry_z, lift, funnel) + offset
-        return expert.move(env, target, q, 1.0, speed=funnel_speed(float(np.linalg.norm(box.pos - place))))
+        return expert.move(env, target, q, 1.0, speed=funnel_speed(float(np.linalg.norm(box.pos - place))), ee=ee)
     if xy_err < 0.02 or (lowered and xy_err < 0.03):
         if box.pos[2] < place[2] + drop and xy_err < GRASP_TOL:
-            return expert.move(env, ee_pos, q, 0.0)  # in place: open
+            return expert.move(env, ee_pos, q, 0.0, ee=ee)  # in place: open
         target = place + offset - np.array([0.0, 0.0, 0.002])  # a little low, so contact stops it
-        return expert.move(env, target, q, 1.0, speed=0.6)
+        return expert.move(env, target, q, 1.0, speed=0.6, ee=ee)
     over_place = np.array([place[0] + offset[0], place[1] + offset[1], carry_z + offset[2]])
     if lowered and box.pos[2] - box.half > others_top + 0.005:
         over_place[2] = ee_pos[2]  # above everything already: correct sideways at this height
-        return expert.move(env, over_place, q, 1.0)
+        return expert.move(env, over_place, q, 1.0, ee=ee)
     if lowered:
-        return expert.move(env, np.array([ee_pos[0], ee_pos[1], carry_z + offset[2]]), q, 1.0)  # lift clear
-    return expert.move(env, over_place, q, 1.0)
+        return expert.move(env, np.array([ee_pos[0], ee_pos[1], carry_z + offset[2]]), q, 1.0, ee=ee)  # lift clear
+    return expert.move(env, over_place, q, 1.0, ee=ee)

@@ -48,12 +48,13 @@ class PickExpert(Expert):
         task: Pick = env.task  # type: ignore[assignment]
         box = task.box(env)
         p = self.p
-        a = approach_and_grasp(self, env, box, box.pos[2] + p.grasp_depth + p.approach_height, p.grasp_depth, p.grasp_yaw)
+        ee = env.ee_pose()
+        a = approach_and_grasp(self, env, box, box.pos[2] + p.grasp_depth + p.approach_height, p.grasp_depth, p.grasp_yaw, ee=ee)
         if a is not None:
             return a
-        ee_pos, ee_quat = env.ee_pose()
+        ee_pos, ee_quat = ee
         lift = np.array([ee_pos[0], ee_pos[1], task.half + p.lift_to + p.grasp_depth])
-        return self.move(env, lift, down_quat(yaw_of(ee_quat)), 1.0)  # keep the grasp heading
+        return self.move(env, lift, down_quat(yaw_of(ee_quat)), 1.0, ee=ee)  # keep the grasp heading
 
 
 class Pick(Task):

@@ -55,7 +55,8 @@ class PushExpert(Expert):
         p = self.p
         b, _ = env.body_pose(task.body)
         g = task.goal(env)
-        ee, _ = env.ee_pose()
+        ee_pose = env.ee_pose()
+        ee = ee_pose[0]
         r = g[:2] - b[:2]
         dist = math.hypot(r[0], r[1])
         u = r / dist if dist > 1e-6 else np.array([1.0, 0.0])
@@ -74,21 +75,21 @@ class PushExpert(Expert):
 
         if dist < (p.done_tol if pushing else p.redo_tol):
             back = np.array([*(b[:2] - u * (h + 0.05)), z_hover])  # done: back off and lift
-            return self.move(env, back, q, 1.0)
+            return self.move(env, back, q, 1.0, ee=ee_pose)
         if pushing:
             # Aim just inside the rear face; slow down near the goal so the block does not overshoot.
             step = 0.8 * min(dist, 0.02)
             tgt = b[:2] + n * p.contact_offset - u * (h + PUSHER_HALF - step)
             slow = p.push_speed * min(1.0, max(0.3, dist / 0.05))
-            return self.move(env, np.array([tgt[0], tgt[1], z_push]), q, 1.0, speed=slow)
+            return self.move(env, np.array([tgt[0], tgt[1], z_push]), q, 1.0, speed=slow, ee=ee_pose)
         stand = b[:2] + n * p.contact_offset - u * (h + PUSHER_HALF + 0.03)
         to_stand = math.hypot(ee[0] - stand[0], ee[1] - stand[1])
         descending = ee[2] < z_hover - 0.015 and to_stand < 0.03
         if to_stand < 0.012 or descending or (low and along < -(h + 0.004) and abs(lat) < h + 0.03):
-            return self.move(env, np.array([stand[0], stand[1], z_push]), q, 1.0)  # descend / re-align behind
+            return self.move(env, np.array([stand[0], stand[1], z_push]), q, 1.0, ee=ee_pose)  # descend / re-align behind
         if ee[2] > z_hover - 0.015:
-            return self.move(env, np.array([stand[0], stand[1], z_hover]), q, 1.0)  # hover over to the standoff
-        return self.move(env, np.array([ee[0], ee[1], z_hover]), q, 1.0)  # lift clear of the block first
+            return self.move(env, np.array([stand[0], stand[1], z_hover]), q, 1.0, ee=ee_pose)  # hover over to the standoff
+        return self.move(env, np.array([ee[0], ee[1], z_hover]), q, 1.0, ee=ee_pose)  # lift clear of the block first
 
 
 class Push(Task):

@@ -40,10 +40,10 @@ class ReachExpert(Expert):
 
     def act(self, env: "Env") -> np.ndarray:
         goal_pos, goal_quat = env.task.goal(env)  # type: ignore[attr-defined]
-        ee_pos, _ = env.ee_pose()
-        far = min(1.0, math.hypot(*(goal_pos[:2] - ee_pos[:2])) / 0.15)
+        ee = env.ee_pose()
+        far = min(1.0, math.hypot(*(goal_pos[:2] - ee[0][:2])) / 0.15)
         target = goal_pos + np.array([0.0, 0.0, self.p.arc * far])
-        return self.move(env, target, goal_quat, 0.0)
+        return self.move(env, target, goal_quat, 0.0, ee=ee)
 
 
 class Reach(Task):

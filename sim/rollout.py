@@ -116,27 +116,36 @@ def rollout(
         env.reset(seed)
     horizon = max_steps or env.horizon
     hold = SuccessHold(hold_success_s, env.fps)
-    frames: dict[str, list[np.ndarray]] = {}
-    unknown_target = np.zeros(7, dtype=np.float32)
+    # Each step's frame (a fresh dict from env.frame) and command, stacked key by key at the end.
+    steps: list[tuple[dict[str, np.ndarray], StepCommand]] = []
     frame = env.frame()
     for t in range(horizon):
         command = actor(env, frame, t)
         if record:
-            frame = dict(frame)
-            frame["action"] = command.label
-            frame["info.executed_action"] = command.executed
-            frame["info.ee_target"] = unknown_target if command.ee_target is None else command.ee_target
-            for key, value in frame.items():
-                frames.setdefault(key, []).append(np.asarray(value))
+            steps.append((frame, command))
         obs, _, success, _, _ = env.step(command.executed)
         frame = env.frame(obs)
         if hold.update(success):
             break
-    data = {k: np.stack(v) for k, v in frames.items()} if record else {}
     return Episode(
-        data=data, success=bool(env.success()), length=hold.steps, first_success_step=hold.first_success,
-        failure=env.task.failure(env),
+        data=_stack(steps) if record else {}, success=bool(env.success()), length=hold.steps,
+        first_success_step=hold.first_success, failure=env.task.failure(env),
     )
+
+
+def _stack(steps: list[tuple[dict[str, np.ndarray], StepCommand]]) -> dict[str, np.ndarray]:
+    """Per-frame arrays [T, ...]: the frames' keys, then the commands' (module docstring).
+
+    ``np.array`` of a list of same-shape arrays is ``np.stack``'s result (same promotion, same
+    values) at a fraction of its per-element cost."""
+    if not steps:
+        return {}
+    unknown_target = np.zeros(7, dtype=np.float32)
+    data = {key: np.array([frame[key] for frame, _ in steps]) for key in steps[0][0]}
+    data["action"] = np.array([c.label for _, c in steps])
+    data["info.executed_action"] = np.array([c.executed for _, c in steps])
+    data["info.ee_target"] = np.array([unknown_target if c.ee_target is None else c.ee_target for _, c in steps])
+    return data
 
 
 def run_expert(

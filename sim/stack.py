@@ -1,7 +1,11 @@
 """`stack`: stack ``blocks`` = N cubes on a pad, cube 0 at the bottom (N = 1: place a cube on the pad).
 
 A long-horizon task: N pick-and-place cycles, horizon ``60 + 100 N`` control steps, so success can
-be plotted against horizon. Reset: the pad (a marker, mocap) and the N cubes (``cube_size``, 80 g
+be plotted against horizon. ``repeat`` = K > 1 does it K times: once the stack stands on the pad with
+the gripper open, the pad moves to its next spot (drawn at reset, each at least ``2 SPACING`` from the
+last; the placements done and the spots are kept in ``data.userdata``, part of the state) and the
+stack must be built there again; success is the K-th stack, horizon ``60 + 100 N K``. Each cycle is
+the same skill from another start, so the horizon grows while the task does not get harder per step. Reset: the pad (a marker, mocap) and the N cubes (``cube_size``, 80 g
 each, distinct colours, random headings) are spread over x 0.38..0.64, |y| <= 0.25 m (base frame),
 at least 9 cm apart. Success: every cube i rests on the pad at level i (centre within 2 cm of the
 pad axis and 1 cm of height ``(i + 1/2) cube_size``) and the gripper is open.
@@ -61,6 +65,8 @@ COLOURS = [(0.85, 0.2, 0.2), (0.2, 0.6, 0.25), (0.2, 0.35, 0.85), (0.9, 0.75, 0.
 # Where a wrongly held cube is put down, first free one wins (base frame x, y).
 NEAR = 0.05  # m: saturation of the near-field observations (object_in_ee, object_to_place)
 PARKING = [(x, y) for y in (-0.28, 0.28, -0.2, 0.2) for x in (0.36, 0.46, 0.56, 0.66)]
+MAX_REPEAT = 8
+DONE_SLOT = 0  # repeat > 1: data.userdata[0] = stacks completed so far; [1 + 2 i : 3 + 2 i] = the pad's i-th spot (x, y)
 
 
 @dataclasses.dataclass
@@ -87,8 +93,9 @@ class StackExpert(Expert):
         pad = task.goal(env)
         s = task.size
         k = task.levels_done(env, boxes, pad)
-        ee_pos, ee_quat = env.ee_pose()
-        held = next((i for i, b in enumerate(boxes) if in_hand(env, b)[1]), None)
+        ee = env.ee_pose()
+        ee_pos, ee_quat = ee
+        held = next((i for i, b in enumerate(boxes) if in_hand(env, b, ee)[1]), None)
 
         def top_of_others(skip: int) -> float:
             return max([b.pos[2] + s / 2 for i, b in enumerate(boxes) if i != skip], default=0.0)
@@ -97,20 +104,20 @@ class StackExpert(Expert):
             # Cube k, or a cube already in place (k counts it) that is still in the hand: put it
             # at its level, which releases it when it is there.
             place = np.array([pad[0], pad[1], (held + 0.5) * s])
-            return carry_and_place(self, env, boxes[held], place, top_of_others(held), p.clearance, funnel=p.funnel)
+            return carry_and_place(self, env, boxes[held], place, top_of_others(held), p.clearance, funnel=p.funnel, ee=ee)
         if held is not None:
             spot = self._parking(boxes, pad, held, s)
-            return carry_and_place(self, env, boxes[held], spot, top_of_others(held), p.clearance, funnel=p.funnel)
+            return carry_and_place(self, env, boxes[held], spot, top_of_others(held), p.clearance, funnel=p.funnel, ee=ee)
         if k == len(boxes):
             top = top_of_others(-1)
-            return self.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], top + 0.08)]), ee_quat, 0.0)
+            return self.move(env, np.array([ee_pos[0], ee_pos[1], max(ee_pos[2], top + 0.08)]), ee_quat, 0.0, ee=ee)
         target = self._next_to_grasp(boxes, pad, k, s)
         b = boxes[target]
         approach_z = max(b.pos[2] + p.grasp_depth + p.approach_height, top_of_others(target) + 0.04)
         others = [o.pos for i, o in enumerate(boxes) if i != target] + [pad]
-        a = approach_and_grasp(self, env, b, approach_z, p.grasp_depth, p.grasp_yaw, others, funnel=p.funnel)
+        a = approach_and_grasp(self, env, b, approach_z, p.grasp_depth, p.grasp_yaw, others, funnel=p.funnel, ee=ee)
         if a is None:  # held now but the contact check above just missed it: hold still
-            return self.move(env, ee_pos, ee_quat, 1.0)
+            return self.move(env, ee_pos, ee_quat, 1.0, ee=ee)
         return a
 
     @staticmethod
@@ -138,25 +145,30 @@ class StackExpert(Expert):
 
 class Stack(Task):
     name = "stack"
-    defaults = {"blocks": 2, "cube_size": 0.04}
+    defaults = {"blocks": 2, "cube_size": 0.04, "repeat": 1}
     expert_class = StackExpert
 
     def __init__(self, **options):
         super().__init__(**options)
-        try:
-            self.n = int(self.options["blocks"])
-        except (TypeError, ValueError):
-            raise DemoError("stack", f"blocks must be an integer, got {self.options['blocks']!r}") from None
-        if not 1 <= self.n <= MAX_BLOCKS:
-            raise DemoError("stack", f"blocks must be within 1..{MAX_BLOCKS}, got {self.n}")
-        self.options["blocks"] = self.n
+        self.n = self.options["blocks"] = self._count("blocks", MAX_BLOCKS)
         self.size = float(self.options["cube_size"])
         if not 0.03 <= self.size <= 0.05:
             raise DemoError("stack", f"cube_size must be within 0.03..0.05 m, got {self.size}")
+        self.repeat = self._count("repeat", MAX_REPEAT)
+
+    def _count(self, key: str, most: int) -> int:
+        """The integer option ``key``, refused outside 1..``most``."""
+        try:
+            n = int(self.options[key])
+        except (TypeError, ValueError):
+            raise DemoError("stack", f"{key} must be an integer, got {self.options[key]!r}") from None
+        if not 1 <= n <= most:
+            raise DemoError("stack", f"{key} must be within 1..{most}, got {n}")
+        return n
 
     @property
     def horizon(self) -> int:
-        return 60 + 100 * self.n
+        return 60 + 100 * self.n * self.repeat
 
     def build(self, spec: mujoco.MjSpec, base: BaseFrame) -> None:
         h = self.size / 2
@@ -164,6 +176,8 @@ class Stack(Task):
             add_box_body(spec, base, f"cube{i}", [h] * 3, [*COLOURS[i], 1.0], CUBE_MASS)
         pad = add_mocap_body(spec, "pad")
         add_marker_geom(pad, mujoco.mjtGeom.mjGEOM_BOX, [h + 0.01, h + 0.01, 0.0008], [0.1, 0.8, 0.2, 0.6], pos=[0, 0, 0.0008])
+        if self.repeat > 1:
+            spec.nuserdata = max(spec.nuserdata, DONE_SLOT + 1 + 2 * self.repeat)
 
     def bind(self, env: "Env") -> None:
         m = env.model
@@ -186,6 +200,26 @@ class Stack(Task):
         env.set_mocap_pose(self.mocap, np.array([pad[0], pad[1], 0.0]))
         for j, xy in zip(self.joints, cubes):
             place_free_body(env, j, np.array([xy[0], xy[1], self.size / 2]), rng.uniform(-math.pi, math.pi))
+        if self.repeat > 1:  # drawn after everything else, so that repeat = 1 episodes stay as they were
+            d, last = env.data, pad
+            d.userdata[DONE_SLOT + 1 : DONE_SLOT + 3] = pad
+            for i in range(1, self.repeat):
+                spot = last
+                while np.linalg.norm(spot - last) < 2 * SPACING:
+                    spot = np.array([rng.uniform(*REGION[0]), rng.uniform(*REGION[1])])
+                d.userdata[DONE_SLOT + 1 + 2 * i : DONE_SLOT + 3 + 2 * i] = last = spot
+
+    def after_step(self, env: "Env") -> None:
+        """repeat > 1: a finished stack that is not the last moves the pad to its next spot."""
+        if self.repeat == 1 or not self._stacked(env):
+            return
+        d = env.data
+        done = int(d.userdata[DONE_SLOT])
+        if done < self.repeat - 1:
+            d.userdata[DONE_SLOT] = done + 1
+            xy = d.userdata[DONE_SLOT + 3 + 2 * done : DONE_SLOT + 5 + 2 * done]
+            env.set_mocap_pose(self.mocap, np.array([xy[0], xy[1], 0.0]))
+            mujoco.mj_forward(env.model, d)
 
     def goal(self, env: "Env") -> np.ndarray:
         return env.mocap_pose(self.mocap)[0]
@@ -242,5 +276,11 @@ class Stack(Task):
         out["obs.object_to_place"] = to_place
 
     def success(self, env: "Env") -> bool:
+        if self.repeat > 1 and int(env.data.userdata[DONE_SLOT]) < self.repeat - 1:
+            return False
+        return self._stacked(env)
+
+    def _stacked(self, env: "Env") -> bool:
+        """Every cube at its level on the pad and the gripper open."""
         done = self.levels_done(env, self.boxes(env), self.goal(env), xy_tol=0.02, z_tol=0.01)
         return done == self.n and env.gripper_closedness() < 0.5

@@ -142,8 +142,12 @@ class Expert:
         raise NotImplementedError
 
     # ------------------------------------------------------------------ motion primitive
-    def move(self, env: "Env", pos: np.ndarray, quat: np.ndarray, grip: float, speed: float = 1.0) -> np.ndarray:
+    def move(
+        self, env: "Env", pos: np.ndarray, quat: np.ndarray, grip: float, speed: float = 1.0,
+        ee: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
         """One control step toward the EE pose (base frame) at the expert's speed; gripper 0..1.
+        ``ee``: ``env.ee_pose()`` of the current state, when the caller has it already.
 
         The commanded waypoint is at most ``speed * max_speed * dt`` away from the current EE
         position (and ``max_rot_speed * dt`` in angle); IK turns it into joint targets. The targets
@@ -152,12 +156,12 @@ class Expert:
         centi-radians) outruns the correction; perturb ``aim_offset`` instead.
         """
         pos = pos + self.aim_offset
-        ee_pos, ee_quat = env.ee_pose()
+        ee_pos, ee_quat = env.ee_pose() if ee is None else ee
         scale = self.p.speed * speed
         dt = 1.0 / env.fps
         step = scale * self.p.max_speed * dt
         d = pos - ee_pos
-        n = math.sqrt(float(d @ d))
+        n = math.sqrt(float(d.dot(d)))  # d @ d
         wp = pos if n <= step else ee_pos + d * (step / n)
         wq = quat_step(ee_quat, quat, scale * self.p.max_rot_speed * dt)
         self.ee_target[:3] = wp

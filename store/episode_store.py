@@ -41,12 +41,34 @@ appended trims.
 
 Opening checks the store against the schema its root ``zarr.json`` declares: every feature's array
 must exist with the declared dtype and per-frame shape, and hold at least the committed frames.
+
+A store may also live on object storage (``s3://bucket/pick.zarr``, see :mod:`demo.store.location`):
+the same objects under a prefix, read and written through zarr's ``FsspecStore``. Objects are written
+whole, each PUT atomic, and cannot be renamed, so there the protocol is:
+
+- an append PUTs the chunk objects it touches, whole (a chunk holding committed frames is rewritten
+  with those frames unchanged: a reader sees its old or its new version), then
+  ``meta/episode_ends``, and last the episode table, PUT whole: that PUT is the commit (S3 and GCS
+  are strongly read-after-write consistent), so a crash or SIGKILL still keeps every finished
+  episode, and frames past the table's last episode are ignored as locally;
+- a new store is built in place, not swapped in: it is present once its episode table exists,
+  which is written with the first committed episode (a collection) or when it is closed (a copy,
+  a conversion: all or nothing). Until then readers are told there is no store; a failure removes
+  what was written, and objects without a table that a killed creation left are removed by the
+  next creation of that path;
+- ``overwrite`` deletes the old store first (its episode table, then the rest), so unlike locally
+  the replacement is not atomic: from then until the new store's first commit there is no store at
+  the path, and a failure in between leaves none;
+- the writer lock is an object beside the store (:class:`~demo.store.writer_lock.RemoteWriterLock`);
+- a robot other than the built-in arm cannot be stored there (its files must be local for MuJoCo).
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import os
+import sys
 import time
 import zlib
 from collections.abc import Iterator, Sequence
@@ -56,15 +78,18 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import zarr
+from zarr.api.asynchronous import create_array
 from zarr.core.sync import sync
+from zarr.storage import StorePath as ZarrPath
 
 from demo.errors import DemoError
-from demo.store import episode_table, swap
+from demo.store import episode_table, swap, writer_lock
 from demo.store.chunk_writer import RowWriter
 from demo.store.image_bytes import camera_bytes
+from demo.store.location import Remote, StorePath, remote_errors, remote_problem, same_store, store_path, zarr_store
 from demo.store.robot_files import ROBOT_DIR, copy_robot_files
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
-from demo.store.writer_lock import WriterLock
+from demo.store.writer_lock import RemoteWriterLock, WriterLock
 
 TABLE_FILE = "episodes.parquet"
 IMAGE_PREFIX = "obs.image_"  # camera images: the only compressed features
@@ -80,8 +105,9 @@ def _chunk_rows(frame_shape: tuple[int, ...], dtype: np.dtype) -> int:
 class EpisodeStore:
     """A directory of episodes. Open with :meth:`create` or :meth:`open`; use as a context manager."""
 
-    def __init__(self, path: Path, root: zarr.Group, meta: StoreMeta, table: pa.Table, writable: bool,
-                 lock: WriterLock | None = None, staged: Path | None = None, atomic: bool = False):
+    def __init__(self, path: StorePath, root: zarr.Group, meta: StoreMeta, table: pa.Table, writable: bool,
+                 lock: WriterLock | RemoteWriterLock | None = None, staged: StorePath | None = None,
+                 atomic: bool = False):
         self.path = path  # the store's name; its files are in self._dir (a staging folder until published)
         self._dir = staged or path
         self._root = root
@@ -99,7 +125,7 @@ class EpisodeStore:
     @classmethod
     def create(
         cls,
-        path: str | Path,
+        path: str | StorePath,
         meta: StoreMeta,
         *,
         overwrite: bool = False,
@@ -115,51 +141,62 @@ class EpisodeStore:
 
         The robot files ``meta.robot`` lists are copied into ``path/robot/`` from ``robot_from`` (a
         store or run directory holding them in its ``robot/``), else from the record's source folder.
+        ``path`` may be a URL on object storage (see the module docstring for what changes there).
         """
-        path = Path(path)
-        lock = WriterLock.acquire(path)
-        staged = swap.staging_path(path)
-        try:
-            swap.recover(path)
-            _check_replaceable(path, overwrite)
-            root = _build(staged, meta, robot_from, path)
-        except BaseException:
-            _remove_quietly(staged)
-            lock.release()
-            raise
+        path = store_path(path)
+        with remote_errors(path):
+            lock = writer_lock.acquire(path)
+            # Object storage cannot rename a prefix: the store is built in place (see the module docstring).
+            staged = path if isinstance(path, Remote) else swap.staging_path(path)
+            try:
+                _recover(path)
+                _check_replaceable(path, overwrite)
+            except BaseException:
+                lock.release()
+                raise
+            try:
+                root = _build(staged, meta, robot_from, path)
+            except BaseException:
+                _remove_quietly(staged)
+                lock.release()
+                raise
         return cls(path, root, meta, episode_table.empty_table(), writable=True, lock=lock, staged=staged,
                    atomic=atomic)
 
     @classmethod
-    def open(cls, path: str | Path, mode: str = "r") -> "EpisodeStore":
-        """Open an existing store, ``mode="r"`` to read or ``"a"`` to append and edit."""
+    def open(cls, path: str | StorePath, mode: str = "r") -> "EpisodeStore":
+        """Open an existing store (a local path or a URL), ``mode="r"`` to read or ``"a"`` to append and edit."""
         if mode not in ("r", "a"):
             raise ValueError(f"mode must be 'r' or 'a', not {mode!r}")
-        path = Path(path)
-        if mode == "a" and not path.parent.is_dir():
+        path = store_path(path)
+        if mode == "a" and isinstance(path, Path) and not path.parent.is_dir():
             raise DemoError(path, "no such store")  # and no folder to create its lock file in
-        lock = WriterLock.acquire(path) if mode == "a" else None
-        try:
-            if lock is not None:
-                swap.recover(path)
-            store = cls._read_existing(path, mode, lock)
-        except BaseException:
-            if lock is not None:
-                lock.release()
-            raise
+        with remote_errors(path):
+            lock = writer_lock.acquire(path) if mode == "a" else None
+            try:
+                if lock is not None:
+                    _recover(path)
+                store = cls._read_existing(path, mode, lock)
+            except BaseException:
+                if lock is not None:
+                    lock.release()
+                raise
         return store
 
     @classmethod
-    def _read_existing(cls, path: Path, mode: str, lock: WriterLock | None) -> "EpisodeStore":
-        if not path.exists():
+    def _read_existing(cls, path: StorePath, mode: str, lock: WriterLock | RemoteWriterLock | None) -> "EpisodeStore":
+        if isinstance(path, Remote):
+            _check_present(path)
+        elif not path.exists():
             aside = swap.interrupted(path)
             raise DemoError(path, "no such store" + (
                 f" (a replacement killed halfway left the previous one at {aside.name}; "
                 "the next write to this path restores it)" if aside else ""))
-        if not path.is_dir() or not (path / "zarr.json").is_file():
+        elif not path.is_dir() or not (path / "zarr.json").is_file():
             raise DemoError(path, "not a demo episode store (no zarr.json in a directory)")
         try:
-            root = zarr.open_group(str(path), mode="r+" if mode == "a" else "r", zarr_format=3)
+            root = zarr.open_group(zarr_store(path, read_only=mode == "r"), mode="r+" if mode == "a" else "r",
+                                   zarr_format=3)
             attrs = dict(root.attrs)
         except Exception as exc:  # zarr raises several types for unreadable metadata
             raise DemoError(path / "zarr.json", f"unreadable zarr metadata ({_first_line(exc)})") from None
@@ -206,6 +243,11 @@ class EpisodeStore:
 
     def _publish(self) -> None:
         """Swap the staged store in at ``path`` (replacing the old one there, then deleting it)."""
+        if isinstance(self.path, Remote):  # built in place: its episode table's PUT makes it present
+            with remote_errors(self.path):
+                episode_table.write_atomic(self._table, self.path / TABLE_FILE)
+            self._staged = False
+            return
         swap.publish(self._dir, self.path)
         self._dir, self._staged = self.path, False
         self._root = zarr.open_group(str(self.path), mode="r+", zarr_format=3)
@@ -228,7 +270,11 @@ class EpisodeStore:
     def __del__(self) -> None:
         # No zarr I/O here: during interpreter shutdown zarr cannot start its event loop. A store
         # that was never closed keeps spare capacity past the committed frames, which is harmless;
-        # one never published stays staged, and the next writer of its path removes it.
+        # one never published stays staged, and the next writer of its path removes it. An
+        # object-storage lock needs the network: left during shutdown (then stale: the next writer
+        # on this machine takes it over), deleted otherwise.
+        if isinstance(self._lock, RemoteWriterLock) and sys.is_finalizing():
+            return
         try:
             self._release_lock()
         except Exception:
@@ -236,16 +282,30 @@ class EpisodeStore:
 
     # ------------------------------------------------------------------ structure
     @property
-    def robot_dir(self) -> Path:
-        """Where the store keeps its robot's files (absent for the built-in arm)."""
+    def robot_dir(self) -> StorePath:
+        """Where the store keeps its robot's files (absent for the built-in arm and on object storage)."""
         return self._dir / ROBOT_DIR
 
     def array(self, key: str) -> zarr.Array:
         if key not in self.meta.features:
             raise DemoError(self.path, f"has no feature {key!r} (features: {', '.join(self.meta.features)})")
         if key not in self._arrays:
+            self._open_arrays()
+        if key not in self._arrays:  # missing or unreadable: say which
             self._arrays[key] = _member(self._root, "data", key, self.path)
         return self._arrays[key]
+
+    def _open_arrays(self) -> None:
+        """Open every feature's array at once, concurrently: on object storage one round trip instead
+        of one per feature. A key that fails is left to :meth:`array`, which names the problem."""
+        todo = [k for k in self.meta.features if k not in self._arrays]
+        if not todo:
+            return
+        store = self._root.store
+        opened = sync(_gather(*(zarr.AsyncArray.open(ZarrPath(store, f"data/{k}"), zarr_format=3) for k in todo)))
+        for key, array in zip(todo, opened):
+            if isinstance(array, zarr.AsyncArray):
+                self._arrays[key] = zarr.Array(array)
 
     def _ends_array(self) -> zarr.Array:
         if "meta/episode_ends" not in self._arrays:  # a group lookup reads metadata from disk: keep the array
@@ -256,7 +316,8 @@ class EpisodeStore:
         """Write ``rows`` at ``start`` now (RowWriter), or return zarr's coroutine that will."""
         if key not in self._row_writers:
             directory = self._dir / ("meta" if key == "episode_ends" else "data") / key
-            self._row_writers[key] = RowWriter.for_array(array, directory)
+            # An object cannot be patched in place: on object storage zarr PUTs each chunk whole.
+            self._row_writers[key] = RowWriter.for_array(array, directory) if isinstance(directory, Path) else None
         writer = self._row_writers[key]
         if writer is None:
             return array.async_array.setitem(slice(start, start + len(rows)), rows)
@@ -336,19 +397,25 @@ class EpisodeStore:
             raise DemoError(self.path, f"has no episode {index} (it has {self.num_episodes})")
 
     def _read(self, key: str, start: int, stop: int) -> np.ndarray:
-        try:
-            return np.asarray(self.array(key)[start:stop])
-        except DemoError:
-            raise
-        except Exception as exc:
-            raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({_first_line(exc)})") from None
+        return self._read_keys([key], start, stop)[key]
+
+    def _read_keys(self, keys: Sequence[str], start: int, stop: int) -> dict[str, np.ndarray]:
+        """Frames ``[start, stop)`` of each key, read concurrently (on object storage: one round trip)."""
+        arrays = [self.array(k) for k in keys]
+        values = sync(_gather(*(a.async_array.getitem(slice(start, stop)) for a in arrays)))
+        out = {}
+        for key, value in zip(keys, values):
+            if isinstance(value, BaseException):
+                raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({_first_line(value)})")
+            out[key] = np.asarray(value)
+        return out
 
     def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """All frames of one episode: ``{key: array[length, ...]}``."""
         self._check_index(index)
         start = int(self._table.column("start")[index].as_py())
         stop = start + int(self._table.column("length")[index].as_py())
-        return {k: self._read(k, start, stop) for k in (keys or self.meta.features)}
+        return self._read_keys(keys or list(self.meta.features), start, stop)
 
     def iter_episodes(
         self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
@@ -364,7 +431,7 @@ class EpisodeStore:
         chosen = self.select(episodes)
         total = self.num_frames
         if len(chosen) == self.num_episodes:
-            return {k: self._read(k, 0, total) for k in keys}, self.episode_ends
+            return self._read_keys(keys, 0, total), self.episode_ends
         starts = self.column("start")[chosen]
         lengths = self.episode_lengths[chosen]
         frames = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lengths)]) if len(chosen) else np.zeros(0, int)
@@ -417,7 +484,7 @@ class EpisodeStore:
         if len(values) != self.num_episodes:
             raise DemoError(self.path, f"column {name!r} has {len(values)} values for {self.num_episodes} episodes")
         table = episode_table.set_column(self._table, name, values)
-        episode_table.write_atomic(table, self._dir / TABLE_FILE)
+        self._commit(table)
         self._table = table
 
     def update_meta(self, **changes: Any) -> None:
@@ -524,14 +591,29 @@ class EpisodeStore:
             new_ends = total + np.cumsum(lengths, dtype=np.int64)
             writes.append(self._write_rows("episode_ends", self._ends_array(), n_before, new_ends))
             _run_concurrently([w for w in writes if w is not None])
-            episode_table.write_atomic(table, self._dir / TABLE_FILE)  # the commit
-        except OSError as exc:  # disk full, quota, permissions: nothing of this append is committed
-            raise DemoError(self.path, f"cannot write ({exc.strerror or _first_line(exc)}); these {len(checked)} "
+            self._commit(table)
+        except Exception as exc:  # disk full, quota, permissions, an unreachable object store
+            problem = self._write_problem(exc)
+            if problem is None:
+                raise
+            raise DemoError(self.path, f"cannot write ({problem}); these {len(checked)} "
                                        f"episode(s) were not committed, the {n_before} before them are kept") from None
         self._table = table
         if self._staged and not self._atomic:
             self._publish()  # the first episode is committed: the store replaces what was at its path
         return indices
+
+    def _commit(self, table: pa.Table) -> None:
+        """Write ``table`` as the episode table: the commit. On object storage the table's existence
+        is what makes a store present, so a store not yet published keeps it for :meth:`_publish`."""
+        if not (self._staged and isinstance(self._dir, Remote)):
+            episode_table.write_atomic(table, self._dir / TABLE_FILE)
+
+    def _write_problem(self, exc: Exception) -> str | None:
+        """Why a write failed, in words, when it is the storage's fault (else None: a bug, re-raised)."""
+        if isinstance(self.path, Remote) and (problem := remote_problem(exc, self.path)) is not None:
+            return problem
+        return (exc.strerror or _first_line(exc)) if isinstance(exc, OSError) else None
 
     def _table_with(self, checked: list[tuple[dict[str, np.ndarray], int]], infos: list[dict[str, Any]],
                     start: int) -> tuple[pa.Table, list[int]]:
@@ -580,7 +662,7 @@ class EpisodeStore:
     # ------------------------------------------------------------------ copies
     def copy_to(
         self,
-        path: str | Path,
+        path: str | StorePath,
         episodes: EpisodeSelection = None,
         *,
         frame_ranges: dict[int, tuple[int, int]] | None = None,
@@ -594,8 +676,8 @@ class EpisodeStore:
         The copy appears at ``path`` when the returned store is closed (all or nothing: a failure,
         or leaving a ``with`` block by an exception, leaves ``path`` as it was).
         """
-        path = Path(path)
-        if path.resolve() == self.path.resolve():
+        path = store_path(path)
+        if same_store(path, self.path):
             raise DemoError(path, "is the source store; write the copy elsewhere")
         chosen = self.select(episodes)
         new_meta = meta or StoreMeta.from_json(self.meta.to_json())
@@ -618,7 +700,7 @@ class EpisodeStore:
             # One read per key for the whole span of the block, then slices: zarr reads are costly per call.
             lo = int(starts[block].min())
             hi = int((starts[block] + lengths[block]).max())
-            span = {k: self._read(k, lo, hi) for k in self.meta.features}
+            span = self._read_keys(list(self.meta.features), lo, hi)
             batch: list[tuple[dict[str, np.ndarray], dict[str, Any]]] = []
             for index in block:
                 a, b = int(starts[index]) - lo, int(starts[index] + lengths[index]) - lo
@@ -664,8 +746,18 @@ class EpisodeStore:
         }
 
 
-def _check_replaceable(path: Path, overwrite: bool) -> None:
+def _recover(path: StorePath) -> None:
+    """Clean up after a killed writer of ``path`` (holding its lock): see :func:`demo.store.swap.recover`.
+    On object storage nothing is staged aside; :func:`_clear_remote` removes a killed creation's objects."""
+    if isinstance(path, Path):
+        swap.recover(path)
+
+
+def _check_replaceable(path: StorePath, overwrite: bool) -> None:
     """Refuse to replace ``path`` unless it is free (absent or an empty folder), or a store and ``overwrite``."""
+    if isinstance(path, Remote):
+        _clear_remote(path, overwrite)
+        return
     if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
         return
     if not os.path.lexists(path):
@@ -676,7 +768,47 @@ def _check_replaceable(path: Path, overwrite: bool) -> None:
         raise DemoError(path, "exists and is not a demo store; refusing to overwrite it")
 
 
-def _build(folder: Path, meta: StoreMeta, robot_from: str | Path | None, where: Path) -> zarr.Group:
+def _clear_remote(path: Remote, overwrite: bool) -> None:
+    """Make ``path`` free on object storage: nothing there, or the objects of a creation that never
+    committed (no episode table), or with ``overwrite`` a store. The old store is deleted, not
+    swapped: its episode table first (from then on it is absent, not half-deleted), then the rest."""
+    if not path.exists():
+        return
+    table = path / TABLE_FILE
+    if table.exists():
+        if not overwrite:
+            raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
+    elif not _unfinished_store(path):
+        raise DemoError(path, "already exists and is not a demo store; refusing to " +
+                        ("overwrite it" if overwrite else "write there"))
+    table.remove()
+    path.remove()
+
+
+def _unfinished_store(path: Remote) -> bool:
+    """Whether the objects at ``path`` are a demo store whose creation committed nothing (no episode table)."""
+    try:
+        raw = json.loads((path / "zarr.json").read_bytes())
+        return raw["attributes"]["demo"]["format"] == FORMAT_NAME
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def _check_present(path: Remote) -> None:
+    """Refuse to open what is not a store on object storage, saying what is there instead."""
+    if (path / TABLE_FILE).exists():
+        if not (path / "zarr.json").exists():
+            raise DemoError(path, "not a demo episode store (no zarr.json)")
+        return
+    if path.exists():
+        raise DemoError(path, "no such store (objects but no episode table: a store being created that has not "
+                              "committed yet, or a creation killed before its first episode)")
+    if not path.bucket.exists():
+        raise DemoError(path, f"bucket {path.bucket} does not exist")
+    raise DemoError(path, "no such store")
+
+
+def _build(folder: StorePath, meta: StoreMeta, robot_from: str | Path | None, where: StorePath) -> zarr.Group:
     """An empty store with ``meta``'s arrays, robot files and episode table, written in ``folder``
     (the staging folder of the store at ``where``, which errors name)."""
     try:
@@ -685,28 +817,34 @@ def _build(folder: Path, meta: StoreMeta, robot_from: str | Path | None, where: 
         raise DemoError(where, f"cannot be created ({exc.strerror or _first_line(exc)})") from None
 
 
-def _build_in(folder: Path, meta: StoreMeta, robot_from: str | Path | None, where: Path) -> zarr.Group:
-    folder.mkdir(parents=True)
-    root = zarr.open_group(str(folder), mode="w", zarr_format=3)
+def _build_in(folder: StorePath, meta: StoreMeta, robot_from: str | Path | None, where: StorePath) -> zarr.Group:
+    if isinstance(folder, Path):
+        folder.mkdir(parents=True)
+    root = zarr.open_group(zarr_store(folder, read_only=False), mode="w", zarr_format=3)
     root.attrs["demo"] = meta.to_json()
-    data = root.create_group("data")
-    for key, spec in meta.features.items():
-        rows = _chunk_rows(spec.shape, spec.np_dtype)
-        # Low-dimensional data barely compresses and is appended in place (see chunk_writer).
-        compressors = "auto" if key.startswith(IMAGE_PREFIX) else None
-        try:
-            data.create_array(key, shape=(0, *spec.shape), chunks=(rows, *spec.shape), dtype=spec.np_dtype,
-                              compressors=compressors)
-        except ValueError as exc:  # a name zarr cannot store as a path
-            raise DemoError(where, f"feature name {key!r} cannot be stored ({_first_line(exc)})") from None
-    root.create_group("meta").create_array("episode_ends", shape=(0,), chunks=(8192,), dtype="int64",
-                                           compressors=None)
+    root.create_group("data")
+    root.create_group("meta")
+    arrays = {("data", key): dict(shape=(0, *spec.shape), chunks=(_chunk_rows(spec.shape, spec.np_dtype), *spec.shape),
+                                  dtype=spec.np_dtype,
+                                  # Low-dimensional data barely compresses and is appended in place (see chunk_writer).
+                                  compressors="auto" if key.startswith(IMAGE_PREFIX) else None)
+              for key, spec in meta.features.items()}
+    arrays["meta", "episode_ends"] = dict(shape=(0,), chunks=(8192,), dtype="int64", compressors=None)
+    # Created together, as Group.create_array would one by one: on object storage one round of requests.
+    created = sync(_gather(*(create_array(ZarrPath(root.store, group), name=key, **spec)
+                             for (group, key), spec in arrays.items())))
+    for (_, key), result in zip(arrays, created):
+        if isinstance(result, ValueError):  # a name zarr cannot store as a path
+            raise DemoError(where, f"feature name {key!r} cannot be stored ({_first_line(result)})")
+        if isinstance(result, BaseException):
+            raise result
     copy_robot_files(meta.robot, robot_from, folder)
-    episode_table.write_atomic(episode_table.empty_table(), folder / TABLE_FILE)
+    if isinstance(folder, Path):  # on object storage the table makes the store present: written at its first commit
+        episode_table.write_atomic(episode_table.empty_table(), folder / TABLE_FILE)
     return root
 
 
-def _member(root: zarr.Group, group: str, key: str, where: Path) -> zarr.Array:
+def _member(root: zarr.Group, group: str, key: str, where: StorePath) -> zarr.Array:
     """``root[group][key]``, or DemoError naming the array's metadata file."""
     try:
         return root[group][key]
@@ -716,10 +854,13 @@ def _member(root: zarr.Group, group: str, key: str, where: Path) -> zarr.Array:
         raise DemoError(where / group / key / "zarr.json", f"unreadable array metadata ({_first_line(exc)})") from None
 
 
-def _remove_quietly(path: Path) -> None:
+def _remove_quietly(path: StorePath) -> None:
     try:
-        swap.remove(path)
-    except OSError:
+        if isinstance(path, Remote):
+            path.remove()
+        else:
+            swap.remove(path)
+    except Exception:
         pass  # the next writer of this path removes leftovers
 
 
@@ -741,12 +882,15 @@ def _blocks(chosen: np.ndarray, starts: np.ndarray, lengths: np.ndarray, max_fra
 
 
 def _run_concurrently(coroutines: list[Any]) -> None:
-    if coroutines:
-        sync(_gather(coroutines))
+    """Run zarr coroutines together; the first failure is raised."""
+    for result in sync(_gather(*coroutines)) if coroutines else ():
+        if isinstance(result, BaseException):
+            raise result
 
 
-async def _gather(coroutines: list[Any]) -> None:
-    await asyncio.gather(*coroutines)
+async def _gather(*coroutines: Any) -> list[Any]:
+    """Every coroutine's result or exception (none is left running when another fails)."""
+    return await asyncio.gather(*coroutines, return_exceptions=True)
 
 
 def _first_line(exc: BaseException) -> str:

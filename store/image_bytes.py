@@ -4,20 +4,22 @@ Camera images are the only compressed features (zstd, see :mod:`demo.store.chunk
 bulk of an image store. The stored size is measured, not estimated: the sizes on disk of the chunk
 files that hold the committed frames (a chunk never written holds fill values and has no file;
 spare capacity past the committed frames is not counted). Files are ``lstat``-ed, never followed
-or read, so an untrusted store cannot point this anywhere.
+or read, so an untrusted store cannot point this anywhere; on object storage the sizes come from one
+listing of the array's objects.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zarr
 
+from demo.store.location import Remote, StorePath
 
-def stored_bytes(array: zarr.Array, folder: Path, frames: int) -> int | None:
+
+def stored_bytes(array: zarr.Array, folder: StorePath, frames: int) -> int | None:
     """Bytes on disk of the chunk files of ``array`` (kept in ``folder``) that hold rows ``[0, frames)``.
 
     None for a layout split along other axes than time (written by another tool): no per-frame size.
@@ -26,10 +28,15 @@ def stored_bytes(array: zarr.Array, folder: Path, frames: int) -> int | None:
     if not grid or tuple(grid[1:]) != tuple(array.shape[1:]):
         return None
     rest = (0,) * (array.ndim - 1)
+    objects = folder.sizes() if isinstance(folder, Remote) else None
     total = 0
     for index in range(-(-frames // int(grid[0]))):
+        key = array.metadata.encode_chunk_key((index, *rest))
+        if objects is not None:
+            total += objects.get(key, 0)
+            continue
         try:
-            total += os.lstat(folder / array.metadata.encode_chunk_key((index, *rest))).st_size
+            total += os.lstat(folder / key).st_size
         except OSError:  # never written (all fill values), or not a file zarr could read either
             pass
     return total
@@ -45,7 +52,7 @@ def per_frame(raw: int, stored: int | None, frames: int) -> dict[str, Any]:
     }
 
 
-def camera_bytes(arrays: dict[str, tuple[zarr.Array, Path]], frames: int) -> dict[str, Any]:
+def camera_bytes(arrays: dict[str, tuple[zarr.Array, StorePath]], frames: int) -> dict[str, Any]:
     """For camera features ``{key: (array, folder)}`` holding ``frames`` committed frames:
     ``{"per_camera": {key: {"shape", **per_frame}}, "total": per_frame}`` (``{}`` without cameras)."""
     if not arrays:

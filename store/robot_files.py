@@ -26,6 +26,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from demo.errors import DemoError
+from demo.store.location import is_remote
 
 ROBOT_DIR = "robot"
 _STAGING = ".robot.tmp"
@@ -83,15 +84,18 @@ def first_problem(files: dict[str, str], folder: Path, contained: bool) -> tuple
     return None
 
 
-def locate(record: dict[str, Any] | None, where: str | Path | None) -> tuple[Path | None, tuple[Path, str] | None]:
-    """The folder holding every file the record lists, intact: ``where/robot`` first, then ``source``.
+def locate(record: dict[str, Any] | None, where: object) -> tuple[Path | None, tuple[str | Path, str] | None]:
+    """The folder holding every file the record lists, intact: ``where/robot`` first (a local store
+    or run; a store on object storage holds none), then ``source``.
 
     Returns ``(folder, None)``, or ``(None, problem)`` with the problem found in ``where``'s copy
     (else in the source folder). ``where`` is the store or run directory the record belongs to.
     """
     files = file_table(record, where)
     problem = None
-    if where is not None:
+    if is_remote(where):  # MuJoCo reads files: a store on object storage keeps no robot files (copy_robot_files)
+        problem = (f"{where}/{ROBOT_DIR}", "robot files of a store on object storage are not read")
+    elif where is not None:
         problem = first_problem(files, Path(where) / ROBOT_DIR, contained=True)
         if problem is None:
             return Path(where) / ROBOT_DIR, None
@@ -104,16 +108,21 @@ def locate(record: dict[str, Any] | None, where: str | Path | None) -> tuple[Pat
     return None, problem or (Path(str(where or "robot")), "robot record names no folder holding its files")
 
 
-def copy_robot_files(record: dict[str, Any] | None, origin: str | Path | None, dest: str | Path) -> bool:
+def copy_robot_files(record: dict[str, Any] | None, origin: object, dest: object) -> bool:
     """Copy the files ``record`` lists (found by :func:`locate` from ``origin``) to ``dest/robot``.
 
     Staged in ``dest/.robot.tmp`` and renamed into place, so ``dest/robot`` is always either absent,
     the old copy or the complete new one. Returns False (and copies nothing) when the record lists
     no files or none of its folders holds them intact; a reader then reports the missing file.
+    ``dest`` on object storage (a :class:`~demo.store.location.Remote`) is refused for a robot with
+    files: MuJoCo reads local files, and fetching them back is not implemented.
     """
     files = file_table(record, dest)
     if not files:
         return False
+    if is_remote(dest):
+        raise DemoError(dest, f"a store on object storage cannot hold a robot's files yet (robot {(record or {}).get('name')!r} "
+                              "is not the built-in arm): write it to a local folder")
     folder, _ = locate(record, origin)
     dest = Path(dest)
     target = dest / ROBOT_DIR

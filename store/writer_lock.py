@@ -10,15 +10,31 @@ The file holds its owner's pid, named in the refusal. It is unlinked on release,
 locked; a process that opened the old file just before then locks an unlinked file, which
 :meth:`WriterLock.acquire` detects (the path no longer leads to the file it locked) and retries.
 A crashed owner's lock is released by the kernel; its file stays and is reused.
+
+On object storage (:class:`RemoteWriterLock`) there is no flock: the lock is the object
+``.NAME.lock`` beside the store, created only if absent, holding its owner's host and pid, and
+deleted on release. On S3 the create is a conditional PUT (``If-None-Match: *``), so of two writers
+exactly one gets it; on a backend without conditional writes fsspec checks, then writes, and one
+writer per store is then the user's responsibility. Nothing releases the lock of a killed writer:
+the next writer on the same machine (host, kernel boot and pid namespace) takes it over when that
+pid is gone (a takeover is not atomic: two writers starting at the same moment after a crash could
+both proceed); a writer elsewhere is refused, told which object to delete once the owner is gone.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
+import socket
 from pathlib import Path
 
 from demo.errors import DemoError
+from demo.store.location import Remote, StorePath
+
+
+def acquire(path: StorePath) -> "WriterLock | RemoteWriterLock":
+    """The writer lock of the store at ``path``, local or on object storage (see the module docstring)."""
+    return RemoteWriterLock.acquire(path) if isinstance(path, Remote) else WriterLock.acquire(path)
 
 
 def lock_path(path: Path) -> Path:
@@ -98,3 +114,73 @@ def _read_pid(fd: int) -> int | None:
     except OSError:
         return None
     return int(text) if text.isdigit() else None
+
+
+class RemoteWriterLock:
+    """The writer lock of a store on object storage: the object ``.NAME.lock`` beside it."""
+
+    def __init__(self, path: Remote, file: Remote):
+        self.path = path
+        self.file = file
+        self.held = True
+
+    @classmethod
+    def acquire(cls, path: Remote) -> "RemoteWriterLock":
+        """Create the lock object, or raise ``DemoError(path, "is being written by another process ...")``."""
+        file = path.sibling(f".{path.name}.lock")
+        machine = _this_machine()
+        took_over = False
+        for _ in range(3):
+            if file.create(f"{machine} {os.getpid()}\n".encode()):
+                return cls(path, file)
+            owner_machine, owner_pid = _read_owner(file)
+            if owner_pid is None and not file.exists():
+                continue  # released in between
+            if not took_over and owner_machine == machine and owner_pid is not None and not _alive(owner_pid):
+                file.remove()  # its writer was killed on this machine: nothing else releases it
+                took_over = True
+                continue
+            break
+        host = (owner_machine or "").split("/")[0]
+        owner = f" (pid {owner_pid} on {host})" if owner_pid is not None else ""
+        raise DemoError(path, f"is being written by another process{owner}; if that process is gone, "
+                              f"delete {file} and retry")
+
+    def release(self) -> None:
+        """Delete the lock object. Idempotent."""
+        if self.held:
+            self.held = False
+            try:
+                self.file.remove()
+            except Exception:
+                pass  # unreachable now: the next writer on this machine takes the stale lock over
+
+
+def _read_owner(file: Remote) -> tuple[str | None, int | None]:
+    try:
+        host, pid = file.read_bytes().decode("utf-8", "replace").split()
+        return host, int(pid)
+    except (OSError, ValueError):  # gone in between, or not our format
+        return None, None
+
+
+def _this_machine() -> str:
+    """Where a pid means something: the host name, and on Linux the kernel's boot and the pid
+    namespace (containers may share a host name, or a kernel, without sharing pids)."""
+    parts = [socket.gethostname().replace(" ", "_")]
+    try:
+        parts.append(Path("/proc/sys/kernel/random/boot_id").read_text().strip())
+        parts.append(str(os.stat("/proc/self/ns/pid").st_ino))
+    except OSError:
+        pass
+    return "/".join(parts)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True

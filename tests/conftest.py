@@ -67,3 +67,22 @@ def tiny_bc_config():
         return TrainConfig(**{**base, **changes})
 
     return make
+
+
+@pytest.fixture(scope="session")
+def reach_demos(tmp_path_factory: pytest.TempPathFactory):
+    """``make(episodes) -> path``: scripted ``reach`` demonstrations (seed 0) with the loose tolerances a
+    seconds-long run can meet (pos_tol 0.04 m, rot_tol 0.4 rad), collected once per count (read-only)."""
+    from demo.collect.scripted import CollectConfig, collect_scripted
+
+    made: dict[int, Path] = {}
+
+    def make(episodes: int = 8) -> Path:
+        if episodes not in made:
+            path = tmp_path_factory.mktemp("reach") / f"reach{episodes}.zarr"
+            collect_scripted(CollectConfig(task="reach", episodes=episodes, seed=0,
+                                           task_options={"pos_tol": 0.04, "rot_tol": 0.4}), path, workers=0)
+            made[episodes] = path
+        return made[episodes]
+
+    return make

@@ -125,3 +125,31 @@ def test_camera_images():
         assert env.model.vis.quality.shadowsize == 0 and env.model.vis.quality.offsamples == 0
     finally:
         env.close()
+
+
+def test_per_step_fast_paths_give_the_array_formulas(pick):
+    """Gripper closedness and command as floats, finger contacts by a loop: the array formulas' numbers."""
+    from demo.sim.rollout import run_expert
+
+    env = pick
+    counts = []
+
+    def check(env, t):
+        length = env.data.actuator_length[env.grip_act]
+        each = (length - env._grip_len_open) / (env._grip_len_closed - env._grip_len_open)
+        assert env.gripper_closedness() == float(each[0])
+        c = t / 40.0
+        expected_ctrl = env._grip_open + min(1.0, c) * (env._grip_closed - env._grip_open)
+        assert np.array([env._gripper_ctrl(c)]).tobytes() == expected_ctrl.tobytes()
+        # finger_contacts: the vectorised count it replaced
+        geom = env.data.contact.geom
+        body = env.model.geom_bodyid[geom]
+        mask = env.task.mask
+        hit1 = env._finger_mask[body[:, 0]] & mask[geom[:, 1]]
+        hit2 = env._finger_mask[body[:, 1]] & mask[geom[:, 0]]
+        expected = len(set(body[hit1, 0].tolist()) | set(body[hit2, 1].tolist()))
+        assert env.finger_contacts(mask) == expected
+        counts.append(expected)
+
+    assert run_expert(env, 0, perturb=check).success
+    assert max(counts) == 2  # the check saw the grasp

@@ -200,3 +200,43 @@ def test_every_form_round_trips_random_rotations(form):
 def test_unknown_form_is_refused():
     with pytest.raises(ValueError, match="unknown rotation form"):
         rot.to_mat(np.zeros(3), "axis_angle")
+
+
+def test_one_rotation_fast_paths_give_the_batched_numbers():
+    """Single rotations skip the batch machinery (the experts' per-step case); same bits, new arrays."""
+    from demo.sim.numeric import clip, norm
+
+    rng = np.random.default_rng(0)
+    qs = rng.normal(size=(200, 4))
+    qs[:5, 0] = [-0.0, 0.0, -1e-300, 1e-300, -2.0]
+    for q in qs:
+        out = canonical(q)
+        assert out.tobytes() == np.where(q[..., :1] < 0, -q, q).tobytes() and out is not q
+        assert norm(q) == float(np.linalg.norm(q))
+        R = quat_to_mat(q / np.linalg.norm(q))
+        assert rot.mat_to_quat(R).tobytes() == rot.mat_to_quat(R[None])[0].tobytes()
+        assert rot.mat_to_quat(R.reshape(9)).tobytes() == rot.mat_to_quat(R[None])[0].tobytes()
+    x = np.array([-0.0, 0.0, -3.0, 3.0, np.nan, 0.5])
+    lo, hi = np.array([0.0, -0.0, -1.0, -1.0, 0.0, 0.0]), np.array([1.0, 0.0, 1.0, 1.0, 1.0, 1.0])
+    assert clip(x, lo, hi).tobytes() == np.clip(x, lo, hi).tobytes()  # signed zeros and NaN included
+
+
+def test_quat_step_is_the_composition_of_the_public_rotations():
+    """quat_step's inlined conjugate and norm: the numbers of quat_conj / np.linalg.norm."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a, b = rng.normal(size=4), rng.normal(size=4)
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        max_angle = rng.uniform(0.0, 1.0)
+        diff = quat_mul(b, quat_conj(a))
+        diff = -diff if diff[0] < 0 else diff
+        if 2.0 * math.acos(min(1.0, diff[0])) <= max_angle:
+            expected = b
+        else:
+            axis = diff[1:]
+            n = float(np.linalg.norm(axis))
+            s = math.sin(max_angle / 2) / n
+            step = np.array([math.cos(max_angle / 2), axis[0] * s, axis[1] * s, axis[2] * s])
+            out = quat_mul(step, a)
+            expected = out / np.linalg.norm(out)
+        assert quat_step(a, b, max_angle).tobytes() == np.asarray(expected, dtype=np.float64).tobytes()

@@ -44,6 +44,8 @@ def test_two_gloo_processes_train_one_run_written_by_rank_0(reach: Path, tmp_pat
     assert "data_parallel" not in json.loads((one / "run.json").read_text())
     losses = [loss for _, loss in json.loads((two / "metrics.json").read_text())["train_loss"]]
     assert len(losses) == 3 and losses[-1] < 0.8 * losses[0]
+    rates = json.loads((two / "metrics.json").read_text())["samples_per_s"]  # what bench train --nproc reads
+    assert [step for step, _ in rates] == [100, 200, 300] and min(r for _, r in rates) > 0
     # Another number of processes continues it (one process here), and the result evaluates.
     assert main(["train", str(reach), "--out", str(two), *ARGS[2:], "--steps", "400", "--resume"]) == 0
     assert json.loads((two / "metrics.json").read_text())["final"]["step"] == 400
@@ -56,3 +58,13 @@ def test_nproc_is_checked(reach: Path, tmp_path: Path) -> None:
     assert main(["train", str(reach), "--out", str(tmp_path / "r"), "--nproc", "0"]) != 0
     assert main(["train", str(reach), "--out", str(tmp_path / "r"), "--algo", "dagger", "--nproc", "2"]) != 0
     assert not (tmp_path / "r").exists()
+
+
+def test_bench_train_nproc_compares_with_one_process(reach: Path) -> None:
+    from demo.bench.train_parallel import run_parallel
+
+    result = run_parallel(2, data=reach, steps=300, batch_size=32, rounds=1)
+    assert result["samples_per_s"] > 0 and result["reference_samples_per_s"] > 0
+    assert result["ratio_to_reference"] == pytest.approx(result["samples_per_s"] / result["reference_samples_per_s"])
+    assert len(result["intervals"]["parallel"]) == 2  # 3 intervals, the warm-up one left out
+    assert main(["bench", "train", "--nproc", "2", "--steps", "10"]) != 0  # too few steps to measure

@@ -216,19 +216,45 @@ def save_policy(
     run_dir: str | Path, weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer, action_norm: MinMaxNormalizer
 ) -> None:
     """Write the evaluation weights and the normalisers to ``policy.safetensors``."""
+    tensors = policy_tensors(weights, obs_norm, action_norm)
+    path = Path(run_dir) / POLICY_FILE
+    replace_atomically(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+
+
+def policy_tensors(weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer,
+                   action_norm: MinMaxNormalizer) -> dict[str, torch.Tensor]:
+    """What ``policy.safetensors`` holds: the evaluation weights (on the CPU) and the normalisers."""
     tensors = {f"policy.{k}": v.detach().cpu().contiguous().clone() for k, v in weights.items()}
     tensors.update(obs_norm.state_dict("normalizer.obs"))
     tensors.update(action_norm.state_dict("normalizer.action"))
-    path = Path(run_dir) / POLICY_FILE
-    replace_atomically(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+    return tensors
 
 
 def load_bundle(run_dir: str | Path, device: torch.device | str = "cpu") -> PolicyBundle:
     """Rebuild the policy of a run directory on ``device`` (read-only; never unpickles)."""
     run_dir = Path(run_dir)
     run = read_run(run_dir)
+    parts = _policy_parts(run, run_dir / RUN_FILE)
+    path = run_dir / POLICY_FILE
+    if not path.is_file():
+        raise DemoError(run_dir, f"has no {POLICY_FILE} (training did not save a policy yet)")
+    try:
+        tensors = load_file(str(path))
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise DemoError(path, f"not a valid safetensors file, refusing to load it ({str(exc).splitlines()[0][:120]})") from None
+    return _assemble(run, parts, tensors, device, path, run_dir)
+
+
+def bundle_from_tensors(run: dict[str, Any], tensors: dict[str, torch.Tensor], device: torch.device | str = "cpu",
+                        where: str = "policy") -> PolicyBundle:
+    """A policy from a run record (``run.json``'s content) and its :func:`policy_tensors` held in memory,
+    e.g. a learner sent to rollout workers; checked as :func:`load_bundle` checks a run directory."""
+    return _assemble(run, _policy_parts(run, where), tensors, device, where, None)
+
+
+def _policy_parts(run: dict[str, Any], where: str | Path) -> tuple[Any, ...]:
+    """The policy record of ``run`` parsed and checked, with the weight shapes it implies."""
     rec = run["policy"]
-    where = run_dir / RUN_FILE
     try:
         spec = PolicySpec.from_json(rec["spec"])
         obs_spec = ObsSpec.from_json(rec["obs"])
@@ -242,20 +268,20 @@ def load_bundle(run_dir: str | Path, device: torch.device | str = "cpu") -> Poli
             shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config, encoder).state_dict().items()}
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RuntimeError) as exc:
         raise DemoError(where, f"malformed policy record ({exc})") from None
-    path = run_dir / POLICY_FILE
-    if not path.is_file():
-        raise DemoError(run_dir, f"has no {POLICY_FILE} (training did not save a policy yet)")
-    try:
-        tensors = load_file(str(path))
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise DemoError(path, f"not a valid safetensors file, refusing to load it ({str(exc).splitlines()[0][:120]})") from None
+    return rec["algo"], spec, obs_spec, action, execution, config, encoder, relative, shapes
+
+
+def _assemble(run: dict[str, Any], parts: tuple[Any, ...], tensors: dict[str, torch.Tensor], device: torch.device | str,
+              path: str | Path, run_dir: Path | None) -> PolicyBundle:
+    """The bundle of parsed record ``parts`` with the weights and normalisers in ``tensors`` (from ``path``)."""
+    algo, spec, obs_spec, action, execution, config, encoder, relative, shapes = parts
     weights = {k[len("policy."):]: v for k, v in tensors.items() if k.startswith("policy.")}
     stored = {k: tuple(v.shape) for k, v in weights.items()}
     if stored != shapes:
         differ = sorted(k for k in shapes.keys() | stored.keys() if shapes.get(k) != stored.get(k))
         raise DemoError(path, f"does not match the policy in {RUN_FILE} (tensor {differ[0]}: "
                               f"{stored.get(differ[0])} in the file, {shapes.get(differ[0])} in the record)")
-    policy = build_policy(rec["algo"], spec, config, encoder)
+    policy = build_policy(algo, spec, config, encoder)
     try:
         policy.load_state_dict(weights, strict=True)
         obs_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.obs")
@@ -265,7 +291,7 @@ def load_bundle(run_dir: str | Path, device: torch.device | str = "cpu") -> Poli
     if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
         raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
     policy.to(device).eval()
-    return PolicyBundle(rec["algo"], policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
+    return PolicyBundle(algo, policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
 
 
 def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: RelativeActions | None,

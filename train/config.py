@@ -65,6 +65,23 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
         # 93-94% at 16000; with 100 demos at 8000 steps 83%. pick: 90% at 6000 steps, 96% at 8000.
         "steps": 16000,
     },
+    # ACT (demo.train.act): a query every step, temporal ensembling exp(-0.01 i) over every chunk
+    # covering the step (ACT's own execution; --ensemble-decay is its k).
+    "act": {
+        "chunk": 16,
+        "execute": 1,
+        "ensemble": True,
+        "batch_size": 64,
+        "lr": 1e-3,
+        "steps": 5000,
+    },
+}
+
+# BC's sampling heads (--head, demo.train.heads) over BC's own settings: temporal ensembling would
+# average chunks sampled from different modes back together, so they execute chunks whole-ish.
+HEAD_DEFAULTS: dict[str, dict[str, Any]] = {
+    "gmm": {"ensemble": False, "execute": 8},
+    "discrete": {"ensemble": False, "execute": 8},
 }
 
 # With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
@@ -167,10 +184,12 @@ class TrainConfig:
         return d
 
 
-def policy_defaults(name: str, images: bool = False) -> dict[str, Any]:
+def policy_defaults(name: str, images: bool = False, options: dict[str, Any] | None = None) -> dict[str, Any]:
     """The training-loop settings policy ``name`` is trained with unless told otherwise (``images``:
-    on camera images)."""
-    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
+    on camera images; ``options``: the policy's options, BC's ``head`` choosing :data:`HEAD_DEFAULTS`)."""
+    head = HEAD_DEFAULTS.get(str((options or {}).get("head"))) if name == "bc" else None
+    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(head or {}),
+            **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
 
 
 def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] = ()) -> bool:
@@ -193,8 +212,8 @@ def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] =
 
 def for_policy(name: str, **given: Any) -> TrainConfig:
     """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
-    then the policy's defaults (:data:`IMAGE_DEFAULTS` over :data:`POLICY_DEFAULTS` when the data has
-    cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
+    then the policy's defaults (:data:`IMAGE_DEFAULTS` over BC's :data:`HEAD_DEFAULTS` over
+    :data:`POLICY_DEFAULTS`, image ones when the data has cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
     from demo.train.policy import policy_class
 
     policy_class(name)  # an unknown policy fails here, naming the known ones
@@ -208,7 +227,7 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     # again what the CLI resolved) opens nothing.
     image_tuned = {k for table in IMAGE_DEFAULTS.values() for k in table}
     images = not image_tuned <= set(given) and reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
-    values = {**policy_defaults(name, images), **given, "algo": name}
+    values = {**policy_defaults(name, images, given.get("policy")), **given, "algo": name}
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])
     return TrainConfig(**values)

@@ -171,14 +171,32 @@ class DiffusionPolicy(Policy):
     @torch.no_grad()
     def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Normalised chunk ``[B, horizon, action_dim]``; the start noise is drawn from ``generator``."""
+        x = torch.randn((obs.shape[0], self.spec.horizon, self.spec.action_dim), generator=generator, dtype=obs.dtype,
+                        device=obs.device)
+        return self.sample(obs, x, generator)
+
+    @torch.no_grad()
+    def sample(self, obs: torch.Tensor, x_T: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """The normalised chunk the sampler reaches from the start noise ``x_T [B, horizon, action_dim]``:
+        a deterministic function of ``(obs, x_T)`` with DDIM (DDPM draws its step noise from ``generator``)."""
         c = self.config
         b = obs.shape[0]
         plan = self._inference_plan(b)
         scheduler, timesteps, step_film, denoise = plan["scheduler"], plan["timesteps"], plan["step_film"], plan["denoise"]
         film_obs = self.net.film_from_obs(obs.reshape(b, -1))  # once per chunk
-        x = torch.randn((b, self.spec.horizon, self.spec.action_dim), generator=generator, dtype=obs.dtype, device=obs.device)
-        return scheduler.sample(lambda x, t, k: denoise(x, film_obs + step_film[k]), x, sampler=c.sampler,
+        return scheduler.sample(lambda x, t, k: denoise(x, film_obs + step_film[k]), x_T, sampler=c.sampler,
                                 generator=generator, timesteps=timesteps)
+
+    def one_step(self, obs: torch.Tensor, x_T: torch.Tensor) -> torch.Tensor:
+        """The denoiser's clean chunk from pure noise ``x_T`` at the top timestep ``T-1``, with gradients:
+        what a one-step sampler returns (before clipping), the output a distilled student trains
+        (:mod:`demo.train.distill`). Needs ``prediction="sample"``: an epsilon estimate at ``T-1``
+        would be divided by ``sqrt(alpha_bar[T-1])`` (5e-4 for T = 100) to become a chunk."""
+        if self.config.prediction != "sample":
+            raise ValueError("one_step needs prediction='sample'")
+        b = obs.shape[0]
+        t = torch.full((b,), self._scheduler().timesteps(1)[0], device=x_T.device)
+        return self.net(x_T, t, obs.reshape(b, -1))
 
     def _inference_plan(self, batch: int) -> dict[str, Any]:
         """Timesteps, their conditioning contributions and the (traced) denoiser; rebuilt when the weights,

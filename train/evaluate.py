@@ -19,7 +19,16 @@ the robot's base frame, which the arm's own IK turns into its joint targets) and
 that robot reports in the same shapes; the result then says the robot is new to the policy.
 Joint-space actions are one arm's joint targets and never transfer.
 
-Evaluation is deterministic for a seed, whatever ``--workers``: every episode's state depends only
+The flywheel (``demo eval --record STORE``): every rollout is appended to ``STORE`` as an episode
+(created with the evaluation environment's features, task and robot if absent, else checked to
+record the same), source ``policy``, with the columns ``run``, ``success`` and ``outcome``; this
+process alone writes, in episode order, so the store's bytes do not depend on ``--workers`` or
+``--executor``. ``demo curate``, then ``demo train`` (which keeps the successful episodes) turn a
+deployed policy's own successes into training data. An ``error`` episode is not recorded (its last
+action was not finite).
+
+Evaluation is deterministic for a seed, whatever ``--workers`` and ``--executor`` (worker processes
+or Ray actors, :mod:`demo.executor`): every episode's state depends only
 on its seed, and torch runs single-threaded here (a small network at batch 1 gains nothing from
 threads, and thread counts could change float summation order).
 """
@@ -27,8 +36,8 @@ threads, and thread counts could change float summation order).
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import time
+from contextlib import ExitStack
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +47,7 @@ import numpy as np
 import torch
 
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, eval_seeds
 from demo.sim.rollout import StepCommand, rollout
@@ -74,6 +84,7 @@ class EpisodeOutcome:
     outcome: str  # success | timeout | lost | error | the task's failure (e.g. collision)
     error: str = ""
     states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
+    data: dict[str, np.ndarray] | None = None  # every recorded frame, when the rollout is kept (--record)
 
     def to_json(self) -> dict[str, Any]:
         d = {
@@ -170,8 +181,10 @@ def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = No
 
 
 # ---------------------------------------------------------------------------------- one episode
-def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool = False, max_steps: int | None = None) -> EpisodeOutcome:
-    """Reset to ``seed`` and let the policy act until success has held or the horizon."""
+def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool = False, max_steps: int | None = None,
+                keep: bool = False) -> EpisodeOutcome:
+    """Reset to ``seed`` and let the policy act until success has held or the horizon; ``record``: keep
+    the states (videos), ``keep``: every frame (:attr:`EpisodeOutcome.data`)."""
     env.reset(seed)
     actor.reset(seed, env)
 
@@ -182,7 +195,7 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
         return StepCommand(executed=action, label=action)
 
     try:
-        episode = rollout(env, seed, act, reset=False, record=record, max_steps=max_steps)
+        episode = rollout(env, seed, act, reset=False, record=record or keep, max_steps=max_steps)
     except FloatingPointError as exc:
         return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
     if _diverged(env):
@@ -196,7 +209,8 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
     else:
         outcome = "timeout"
     states = episode.data.get("sim.state") if record else None
-    return EpisodeOutcome(index, seed, episode.success, episode.length, episode.first_success_step, outcome, "", states)
+    return EpisodeOutcome(index, seed, episode.success, episode.length, episode.first_success_step, outcome, "", states,
+                          episode.data if keep else None)
 
 
 def _diverged(env: Any) -> bool:
@@ -209,19 +223,19 @@ def _diverged(env: Any) -> bool:
     return int(data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number) > 0 or not np.isfinite(data.qpos).all()
 
 
-def iter_episodes_inline(bundle: PolicyBundle, env: Any, jobs: Sequence[tuple[int, int, bool]],
+def iter_episodes_inline(bundle: PolicyBundle, env: Any, jobs: Sequence[tuple[int, int, bool, bool]],
                          execution: ExecConfig | None = None) -> Iterator[EpisodeOutcome]:
-    """Roll the policy out in this process, one ``(index, seed, record)`` job after the other."""
+    """Roll the policy out in this process, one ``(index, seed, record, keep)`` job after the other."""
     actor = make_actor(bundle, env, execution)
     with single_thread():
-        for index, seed, record in jobs:
-            yield run_episode(env, actor, index, int(seed), record=record)
+        for index, seed, record, keep in jobs:
+            yield run_episode(env, actor, index, int(seed), record=record, keep=keep)
 
 
 def run_episodes_inline(bundle: PolicyBundle, env: Any, seeds: Sequence[int],
                         execution: ExecConfig | None = None) -> list[EpisodeOutcome]:
     """Evaluate an in-memory policy in this process (training-time evaluation, benchmarks)."""
-    return list(iter_episodes_inline(bundle, env, [(i, int(s), False) for i, s in enumerate(seeds)], execution))
+    return list(iter_episodes_inline(bundle, env, [(i, int(s), False, False) for i, s in enumerate(seeds)], execution))
 
 
 class single_thread:
@@ -235,7 +249,7 @@ class single_thread:
         torch.set_num_threads(self.threads)
 
 
-# ---------------------------------------------------------------------------------- worker processes
+# ---------------------------------------------------------------------------------- workers (demo.executor)
 _worker: dict[str, Any] = {}
 
 
@@ -248,23 +262,9 @@ def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None
     _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
 
 
-def _worker_run(job: tuple[int, int, bool]) -> EpisodeOutcome:
-    index, seed, record = job
-    return run_episode(_worker["env"], _worker["actor"], index, seed, record=record)
-
-
-def _run_parallel(
-    run: Path, task: str, options: dict[str, Any], robot: str | None, execution: ExecConfig,
-    jobs: list[tuple[int, int, bool]], workers: int, device: str = "cpu",
-) -> Iterator[EpisodeOutcome]:
-    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state (nor CUDA)
-    pool = ctx.Pool(workers, initializer=_worker_init, initargs=(str(run), task, options, robot, execution.to_json(), device))
-    try:
-        yield from pool.imap(_worker_run, jobs, chunksize=1)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
+def _worker_run(job: tuple[int, int, bool, bool]) -> EpisodeOutcome:
+    index, seed, record, keep = job
+    return run_episode(_worker["env"], _worker["actor"], index, seed, record=record, keep=keep)
 
 
 # ---------------------------------------------------------------------------------- the command
@@ -276,13 +276,16 @@ class EvalConfig:
     robot: str | None = None  # robot config TOML; default: the trained robot
     episodes: int = 100
     seed: int = 0
-    workers: int = 1
+    workers: int = 1  # 1: in this process (process executor)
+    executor: str = "process"  # process | ray (demo.executor)
+    address: str | None = None  # a Ray cluster (None: a local Ray)
     execute: int | None = None  # override the run's chunk execution
     ensemble: float | None = None  # override the ensembling decay (< 0 turns it off)
     video: str | None = None  # .gif (or .mp4 where an encoder is installed)
     video_episodes: int = 4
     video_size: int = 128
     device: str = "auto"  # where the policy runs (demo.train.device); the simulation is always on the CPU
+    record: str | None = None  # a store every rollout is appended to (created if absent): the flywheel
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -307,34 +310,53 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         raise DemoError("--episodes", "must be at least 1")
     if config.workers < 1:
         raise DemoError("--workers", "must be at least 1")
+    executor = ExecutorConfig(config.executor, config.workers, config.address)
+    executor.check()
     run = Path(config.run)
     device = resolve_device(config.device)
+    executor = executor.on_device(device)
     bundle = load_bundle(run, device)
     task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
     execution = execution_for(bundle, config.execute, config.ensemble)
     seeds = eval_seeds(config.seed, config.episodes)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
-    jobs = [(i, s, i < n_video) for i, s in enumerate(seeds)]
+    jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]
     start = time.perf_counter()
     outcomes: list[EpisodeOutcome] = []
     tell = or_silent(progress)
+    store: Any = None  # --record: the store each rollout is appended to, opened once the environment validates
 
     def done(outcome: EpisodeOutcome) -> None:
+        if store is not None and outcome.data is not None:  # this process alone writes, in episode order
+            store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy",
+                                 operator="policy", run=str(run), outcome=outcome.outcome,
+                                 first_success_step=-1 if outcome.first_success_step is None else outcome.first_success_step)
+        outcome.data = None
         outcomes.append(outcome)
         successes = sum(o.success for o in outcomes)
         tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
 
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
     robot_name, transfer = env.robot.name, robot_transfer(bundle, env.robot.name)
+    stack = ExitStack()  # an exception leaves the recorded episodes committed (a store created here and left empty goes)
     try:
-        if config.workers == 1:
-            episodes = iter_episodes_inline(bundle, env, jobs, execution)
+        if config.record is not None:
+            store = stack.enter_context(open_record(config.record, env, task, options, run, config.seed))
+        if executor.kind == "process" and executor.workers == 1:
+            for outcome in iter_episodes_inline(bundle, env, jobs, execution):
+                done(outcome)
         else:
-            episodes = _run_parallel(run, task, options, robot, execution, jobs, config.workers, str(device))
-        for outcome in episodes:
-            done(outcome)
+            init_args = (str(run), task, options, robot, execution.to_json(), str(device))
+            for ready in ordered_map(_worker_init, init_args, _worker_run, jobs, executor,
+                                     label=lambda job: f"evaluation episode {job[0]}"):
+                for outcome in ready:
+                    done(outcome)
+    except BaseException as exc:
+        stack.__exit__(type(exc), exc, exc.__traceback__)
+        raise
     finally:
         env.close()
+    stack.close()
     seconds = time.perf_counter() - start
     result = summarize(outcomes)
     training_seeds = set(int(s) for s in (bundle.run.get("data") or {}).get("seeds", []))
@@ -352,12 +374,15 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
             "execution": execution.to_json(),
             "workers": config.workers,
+            "executor": config.executor,
             "device": str(device),
             "seconds": seconds,
             "steps_per_s": sum(o.length for o in outcomes) / max(seconds, 1e-9),
             **config.extra,
         }
     )
+    if store is not None:
+        result["record"] = {"store": str(config.record), "episodes": sum(o.outcome != "error" for o in outcomes)}
     if config.video:
         from demo.train.video import write_video
 
@@ -367,6 +392,18 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         )
     result["episodes_detail"] = [o.to_json() for o in outcomes]
     return result
+
+
+def open_record(path: str, env: Any, task: str, options: dict[str, Any], run: Path, seed: int) -> Any:
+    """The store ``--record`` appends rollouts to (an :class:`EpisodeStore`, writer lock held): created
+    with ``env``'s features, task and robot, or opened to append after checking it records the same
+    (:func:`demo.collect.scripted.open_output`; a mismatch is refused before any rollout)."""
+    from demo.collect.scripted import CollectConfig, open_output, store_meta
+    from demo.train.checkpoint import now
+
+    meta = store_meta(CollectConfig(task=task, task_options=dict(options)), env)
+    meta.provenance = [{"op": "eval", "run": str(run), "seed": seed, "time": now()}]
+    return open_output(path, meta, append=True, overwrite=False)
 
 
 def summarize(outcomes: Sequence[EpisodeOutcome]) -> dict[str, Any]:

@@ -1,10 +1,13 @@
-"""Behaviour cloning with an MLP: observation history in, action chunk out, MSE loss.
+"""Behaviour cloning with an MLP: observation history in, action chunk out, through an output head.
 
 The flattened, normalised history ``[n_obs * obs_dim]`` goes through ``hidden`` fully connected
-layers to ``horizon * action_dim`` outputs. With ``horizon > 1`` this is action chunking as in ACT
-(Zhao et al. 2023) without the transformer; :mod:`demo.train.actor` executes the chunks with
-receding horizon and optional temporal ensembling. The loss ignores chunk steps past the episode
-end (ACT's ``is_pad``) unless ``loss_on_pad`` is set.
+layers to the outputs of a head (:mod:`demo.train.heads`): ``mse`` regresses the chunk
+(``horizon * action_dim`` outputs, the default), ``gmm`` is a mixture of Gaussians over the chunk and
+``discrete`` a categorical per step and dimension; the last two sample at execution with the
+rollout's seeded generator. With ``horizon > 1`` this is action chunking as in ACT (Zhao et al. 2023)
+without the transformer; :mod:`demo.train.actor` executes the chunks with receding horizon and
+optional temporal ensembling. The loss ignores chunk steps past the episode end (ACT's ``is_pad``)
+unless ``loss_on_pad`` is set.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from demo.train.heads import HEADS, ChunkHead, make_head
 from demo.train.policy import Policy, PolicySpec, register_policy
 
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU, "mish": nn.Mish, "silu": nn.SiLU}
@@ -26,6 +30,13 @@ class MLPConfig:
     layer_norm: bool = False
     dropout: float = 0.0
     loss_on_pad: bool = False
+    head: str = "mse"  # mse | gmm | discrete (demo.train.heads)
+    components: int = 5  # gmm: mixture components over the whole chunk (robomimic: 5)
+    min_std: float = 0.01  # gmm: floor of each component's std, normalised units (robomimic: 0.01)
+    low_noise: bool = True  # gmm: act on the drawn component's mean (robomimic's low_noise_eval); false: a full sample
+    bins: int = 64  # discrete: equal bins over the normalised [-1, 1] per step and dimension
+    temperature: float = 1.0  # gmm, discrete: sampling temperature of the component / bin; 0 = the likeliest
+    commit: bool = False  # gmm: one uniform per episode picks the component at every query (demo.train.heads.draw)
 
     def __post_init__(self) -> None:
         self.hidden = tuple(int(h) for h in self.hidden)
@@ -35,6 +46,12 @@ class MLPConfig:
             raise ValueError(f"activation {self.activation!r} is not one of {', '.join(ACTIVATIONS)}")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must lie in [0, 1), got {self.dropout}")
+        if self.head not in HEADS:
+            raise ValueError(f"head must be one of {', '.join(HEADS)}, got {self.head!r}")
+        if self.components < 1 or self.min_std <= 0:
+            raise ValueError(f"components must be >= 1 and min_std > 0, got {self.components}, {self.min_std}")
+        if self.bins < 2 or self.temperature < 0:
+            raise ValueError(f"bins must be >= 2 and temperature >= 0, got {self.bins}, {self.temperature}")
 
 
 @register_policy("bc")
@@ -43,6 +60,9 @@ class MLPPolicy(Policy):
 
     def __init__(self, spec: PolicySpec, config: MLPConfig):
         super().__init__(spec, config)
+        self.head: ChunkHead = make_head(config.head, spec.horizon, spec.action_dim, components=config.components,
+                                         min_std=config.min_std, low_noise=config.low_noise, bins=config.bins,
+                                         temperature=config.temperature, commit=config.commit)
         layers: list[nn.Module] = []
         width = spec.n_obs * spec.obs_dim
         for h in config.hidden:
@@ -53,21 +73,19 @@ class MLPPolicy(Policy):
             if config.dropout:
                 layers.append(nn.Dropout(config.dropout))
             width = h
-        layers.append(nn.Linear(width, spec.horizon * spec.action_dim))
+        # The head's outputs are the last layer's (its parameters are these): an mse run's weights
+        # keep the names and shapes they had before heads existed.
+        layers.append(nn.Linear(width, self.head.width))
         self.net = nn.Sequential(*layers)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        out = self.net(obs.reshape(obs.shape[0], -1))
-        return out.reshape(obs.shape[0], self.spec.horizon, self.spec.action_dim)
+        """The head's parameters for ``obs [B, n_obs, obs_dim]``: mse the chunk ``[B, H, A]``, else ``[B, head.width]``."""
+        return self.head.outputs(self.net(obs.reshape(obs.shape[0], -1)))
 
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
-        err = (self(obs) - action).square()
-        if self.config.loss_on_pad or self.spec.horizon == 1:
-            return err.mean()
-        keep = (~action_pad).unsqueeze(-1).to(err.dtype)
-        # Step 0 is never padded, so the denominator is at least B * A.
-        return (err * keep).sum() / (keep.sum() * err.shape[-1])
+        keep = None if self.config.loss_on_pad or self.spec.horizon == 1 else ~action_pad
+        return self.head.loss(self(obs), action, keep)
 
     @torch.no_grad()
     def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        return self(obs)
+        return self.head.sample(self(obs), generator)

@@ -90,6 +90,8 @@ _REGISTRY: dict[str, type[Policy]] = {}
 POLICY_MODULES: dict[str, str] = {
     "bc": "demo.train.mlp",
     "diffusion": "demo.train.diffusion",
+    "act": "demo.train.act",
+    "ppo": "demo.train.ppo",  # the Gaussian policy of PPO, GAIL, AIRL and linear IRL runs
 }
 
 

@@ -44,6 +44,7 @@ import torch
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import ActionSpec, EpisodeStore, StoreMeta
+from demo.store.location import absolute
 from demo.train import checkpoint as ckpt
 from demo.train import distributed
 from demo.train.actor import ExecConfig
@@ -268,6 +269,7 @@ class TrainingRun:
                     raise DemoError(c.out, f"training diverged (loss {mean} at step {step}); lower --lr")
                 self.metrics.setdefault("train_loss", []).append([step, mean])
                 rate = count * c.batch_size * world / max(time.perf_counter() - t0, 1e-9)
+                self.metrics.setdefault("samples_per_s", []).append([step, rate])  # windows, every rank's
                 running, count, t0 = torch.zeros(()), 0, time.perf_counter()
                 self.tick(loss=mean, info=f"{rate:,.0f} samples/s")
             if val_batch is not None and (step % c.val_every == 0 or step == until):
@@ -392,7 +394,7 @@ def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner
         "robot": meta.robot,
         "fps": meta.fps,
         "data": {
-            "path": str(Path(config.stores[0]).resolve()),  # a union's first store; all of them under "stores"
+            "path": absolute(config.stores[0]),  # a union's first store; all of them under "stores"
             "episodes_total": len(data.ends),
             "train_episodes": data.train_episodes.tolist(),
             "val_episodes": data.val_episodes.tolist(),
@@ -414,7 +416,7 @@ def store_record(data: TrainingData, i: int) -> dict[str, Any]:
     source = data.sources[i]
     lo, hi = source.first_episode, source.first_episode + source.episodes
     train, val = (int(np.count_nonzero((eps >= lo) & (eps < hi))) for eps in (data.train_episodes, data.val_episodes))
-    return {"path": str(Path(source.path).resolve()), "first_episode": lo, "episodes": source.episodes,
+    return {"path": absolute(source.path), "first_episode": lo, "episodes": source.episodes,
             "train_episodes": train, "val_episodes": val}
 
 

@@ -1,0 +1,116 @@
+"""`demo irl train`: reinforcement learning on the tasks' Gymnasium environments: PPO on the dense task
+reward (or a learned one: reward transfer), GAIL and AIRL, and linear-reward IRL (MaxEnt, apprenticeship)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from demo.cli.main import app, invocation
+from demo.cli.options import json_option, overwrite_option, robot_option
+from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.progress import bars
+from demo.errors import DemoError
+from demo.train.ppo import PPOConfig
+
+irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
+                      no_args_is_help=True)
+app.add_typer(irl_app, name="irl")
+
+ALGOS = ("ppo", "gail", "airl", "maxent", "apprenticeship")
+_P = PPOConfig()  # the defaults live in the library's dataclasses
+
+
+@irl_app.command("train")
+def train(
+    store: str = typer.Argument(None, metavar="STORE", help="Demonstrations (gail, airl, maxent, apprenticeship): a store "
+                                "of the task in the policy's action representation.", show_default=False),
+    out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (demo eval runs it).",
+                             show_default=False),
+    algo: str = typer.Option("ppo", help=f"Algorithm: {', '.join(ALGOS)}."),
+    task: str = typer.Option(None, help="Task.", show_default="the store's; ppo: reach"),
+    reward: str = typer.Option("task", metavar="task|RUN", help="ppo: the dense task reward (demo.train.rewards), or the "
+                               "reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
+    robot: str = robot_option(),
+    action: str = typer.Option(_P.action, metavar="|".join(("ee7", "joint_pos")), help="The policy's actions: ee7 deltas "
+                               "(through the env's IK) or joint targets relative to the measured joints."),
+    obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys.", show_default="state keys without velocities"),
+    steps: int = typer.Option(_P.total_steps, help="Environment (control) steps in all."),
+    envs: int = typer.Option(_P.num_envs, help="Environments stepped in turn."),
+    rollout: int = typer.Option(_P.num_steps, help="Control steps per environment per PPO iteration."),
+    lr: float = typer.Option(_P.lr, help="Adam learning rate of the policy and critic (annealed to 0)."),
+    ent_coef: float = typer.Option(_P.ent_coef, help="Entropy bonus coefficient."),
+    seed: int = typer.Option(0, help="Seed of initialisation, sampling and the training episodes."),
+    demos: int = typer.Option(None, help="Use the first N successful demonstrations.", show_default="all"),
+    init_bc: bool = typer.Option(False, "--init-bc", help="gail, airl: fit the policy's mean to the demonstrations first."),
+    inputs: str = typer.Option("sa", metavar="sa|ss", help="gail: the discriminator reads (s, a) or (s, s')."),
+    grad_penalty: float = typer.Option(10.0, help="gail, airl: gradient penalty weight."),
+    disc_obs_keys: str = typer.Option(None, help="gail, airl: comma-separated obs.* keys the discriminator reads, e.g. "
+                                      "obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos.", show_default="the policy's"),
+    inner: int = typer.Option(5, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
+    eval_every: int = typer.Option(_P.eval_every, help="PPO iterations between rollout evaluations (0: at the end only)."),
+    eval_episodes: int = typer.Option(_P.eval_episodes, help="Episodes per rollout evaluation (monitoring seeds)."),
+    threads: int = typer.Option(1, help="Torch threads (0 = torch's default)."),
+    overwrite: bool = overwrite_option("an existing run in --out"),
+    json_out: str = json_option("the run summary"),
+) -> None:
+    """Train a policy by RL in the simulator; every run directory evaluates with demo eval RUN."""
+    if algo not in ALGOS:
+        raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
+    if (algo == "ppo") != (store is None):
+        raise DemoError("STORE", "ppo learns from the reward, not from a store" if algo == "ppo" else
+                        f"{algo} learns from demonstrations: name a STORE")
+    if algo != "ppo" and reward != "task":
+        raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to ppo")
+    rl = PPOConfig(task=task or (_store_task(store) if store else "reach"), robot=robot, out=str(out), reward=reward,
+                   action=action, obs_keys=_keys(obs_keys),
+                   seed=seed, total_steps=steps, num_envs=envs, num_steps=rollout, lr=lr, ent_coef=ent_coef,
+                   eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
+    common = dict(overwrite=overwrite, command=invocation())
+    with bars() as progress:
+        if algo == "ppo":
+            from demo.train.ppo import train as run
+
+            summary = run(rl, progress=progress, **common)
+        elif algo in ("gail", "airl"):
+            from demo.train.adversarial import AdversarialConfig, train as run_adversarial
+
+            summary = run_adversarial(AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs,
+                                                        grad_penalty=grad_penalty, init_bc=init_bc,
+                                                        disc_obs_keys=_keys(disc_obs_keys)),
+                                      progress=progress, **common)
+        else:
+            from demo.train.irl_linear import LinearIRLConfig, train as run_linear
+
+            summary = run_linear(LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner),
+                                 progress=progress, **common)
+    rows = [("run", summary["out"]), ("algo", algo), ("environment steps", summary["env_steps"]),
+            ("eval success (monitoring seeds)", "-" if summary["success_rate"] is None else
+             f"{summary['success_rate']:.0%} of {summary['eval_episodes']}"),
+            ("seconds", f"{summary['seconds']:.1f}")]
+    if "weights" in summary:
+        for name, unit, w, wu, t in zip(summary["features"], summary["units"], summary["weights"],
+                                        summary["weights_unit"], summary["true_unit"]):
+            rows.append((f"weight {name} [{unit}]", f"{w:+.4g} (unit norm {wu:+.3f}; true {t:+.3f})"))
+        rows.append(("cosine to the true weights", summary["cosine_to_true"]))
+    for key, what in (("reward_corr", "final weights"), ("reward_corr_last5", "reward trained on, last 5 iterations"),
+                      ("g_corr_last5", "AIRL g(s'), last 5 iterations")):
+        if summary.get(key) is not None:
+            rows.append((f"learned vs task reward (Pearson r over rollouts; {what})", summary[key]))
+    report_console(json_out).print(kv_table("trained", rows))
+    write_json(summary, json_out)
+
+
+def _store_task(store: str) -> str:
+    from demo.store import EpisodeStore
+
+    with EpisodeStore.open(store) as s:
+        name = (s.meta.task or {}).get("name")
+    if not name:
+        raise DemoError(store, "records no task; pass --task")
+    return str(name)
+
+
+def _keys(text: str | None) -> tuple[str, ...]:
+    return tuple(k.strip() for k in (text or "").split(",") if k.strip())

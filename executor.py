@@ -1,0 +1,255 @@
+"""Run jobs on workers and get their results back in job order: what ``--workers`` and
+``--executor process|ray`` choose.
+
+Each worker calls ``init(*init_args)`` once (it builds its simulator, policy, ... into module-level
+state of the caller's module), then ``run(job)`` per job. Callers give jobs whose result is a pure
+function of the job (an episode index or seed, and the fixed ``init_args``), so which worker runs a
+job, and how often, changes nothing: results come back in job order and the single writer in this
+process commits the same bytes whatever the executor and the number of workers.
+
+- ``process``: ``workers`` processes of this machine, a ``spawn`` multiprocessing pool (no inherited
+  MuJoCo/GL/torch state; the same behaviour on every OS).
+- ``ray``: ``workers`` Ray actors (one CPU each) on the Ray cluster at ``address``, else on a local
+  one started here with ``workers`` CPUs and shut down afterwards. An actor that dies mid-job (its
+  process killed, its node lost) is replaced and the jobs it held are run again, each at most
+  ``retries`` more times; nothing of a job is committed before its whole result is back, so a
+  failure never leaves half an episode. Ray is an optional dependency (``pip install -e
+  '.[ray]'``), imported only on this path. On a remote cluster the workers need ``demo`` installed
+  and the files ``init`` reads (a robot config, a run directory) at the same paths.
+
+An exception raised by ``init`` or ``run`` (a :class:`~demo.errors.DemoError`, say) is raised again
+in this process as itself; a job that fails that way is never retried.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from functools import partial
+from typing import Any
+
+from demo.errors import DemoError
+
+KINDS = ("process", "ray")
+RAY_INSTALL = "Ray is not installed: pip install -e '.[ray]' (or pip install 'ray>=2.40')"
+IN_FLIGHT = 2  # jobs queued per Ray actor: the next one is there when the current one ends
+LOOKAHEAD = 32  # at most this many jobs (or 4 per worker) run ahead of the next result to commit
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """Where jobs run. ``workers``: processes (``process``; 0 lets a caller run them itself) or actors
+    (``ray``); ``address``: a Ray cluster (None: a local one); ``retries``: re-runs of a job whose Ray
+    actor died; ``gpus_per_worker``: GPUs each Ray actor reserves (a fraction shares one)."""
+
+    kind: str = "process"
+    workers: int = 1
+    address: str | None = None
+    retries: int = 2
+    gpus_per_worker: float = 0.0
+
+    def check(self) -> None:
+        """Refuse a setting that cannot run (Ray missing included), before anything is written."""
+        if self.kind not in KINDS:
+            raise DemoError("--executor", f"unknown executor {self.kind!r} (choose from {', '.join(KINDS)})")
+        if self.address is not None and self.kind != "ray":
+            raise DemoError("--address", "names a Ray cluster: use it with --executor ray")
+        if self.kind == "ray" and self.workers < 1:
+            raise DemoError("--workers", f"--executor ray needs at least 1 worker, got {self.workers}")
+        if self.retries < 0:
+            raise DemoError("retries", f"must be >= 0, got {self.retries}")
+        if self.kind == "ray":
+            _import_ray()
+
+    def on_device(self, device: Any) -> "ExecutorConfig":
+        """This config for workers whose torch runs on ``device``: Ray actors share the GPUs on CUDA
+        (a local Ray gives no GPU to an actor that does not reserve one)."""
+        if self.kind == "ray" and str(device).startswith("cuda"):
+            return replace(self, gpus_per_worker=1.0 / self.workers)
+        return self
+
+
+def ordered_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: Iterable[Any],
+                config: ExecutorConfig, label: Callable[[Any], str] = repr) -> Iterator[list[Any]]:
+    """Yield ``run(job)`` for every job, in job order, in lists: each list holds the next result
+    (waiting for it) and every result after it already back, so a writer can commit them together.
+
+    ``init``, ``run``, ``init_args``, jobs and results must pickle (module-level functions, plain
+    data). ``label(job)`` names a job in the error raised when its Ray worker died too often.
+    """
+    config.check()
+    jobs = list(jobs)
+    if not jobs:
+        return
+    if config.kind == "ray":
+        yield from _ray_map(init, init_args, run, jobs, config, label)
+    else:
+        yield from _process_map(init, init_args, run, jobs, max(1, config.workers))
+
+
+@contextmanager
+def session(config: ExecutorConfig) -> Iterator[None]:
+    """Keep one Ray connection (and a local Ray) for several :func:`ordered_map` calls, e.g. DAgger's
+    rounds; shut down on exit only if it was started here. Does nothing for ``process``."""
+    if config.kind != "ray":
+        yield
+        return
+    ray = _import_ray()
+    if ray.is_initialized():
+        yield
+        return
+    try:
+        ray.init(address=config.address, num_cpus=None if config.address else config.workers,
+                 include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        raise DemoError(config.address or "--executor ray", f"cannot start or reach Ray ({_first_line(exc)})") from None
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+# ---------------------------------------------------------------------------------- in a worker
+_init_error: Exception | None = None  # what this worker's init raised, raised again by each job
+
+
+def _start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
+    """A worker's start: ``init``, keeping its error for the jobs (a pool whose initializer raises
+    restarts it forever; a Ray actor whose constructor raises loses the error's type)."""
+    global _init_error
+    try:
+        init(*init_args)
+    except Exception as exc:
+        _init_error = exc
+
+
+def _call(run: Callable[[Any], Any], job: Any) -> Any:
+    if _init_error is not None:
+        raise _init_error
+    return run(job)
+
+
+class _RayWorker:
+    """The Ray actor: one worker process that runs ``init`` once, then jobs."""
+
+    def __init__(self, spec: tuple[Callable[..., None], Sequence[Any], Callable[[Any], Any]]):
+        init, init_args, self._run = spec
+        _start(init, init_args)
+
+    def run(self, job: Any) -> Any:
+        return _call(self._run, job)
+
+
+# ---------------------------------------------------------------------------------- process
+def _process_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: list[Any],
+                 workers: int) -> Iterator[list[Any]]:
+    ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state (nor CUDA)
+    pool = ctx.Pool(workers, initializer=_start, initargs=(init, tuple(init_args)))
+    try:
+        results = pool.imap(partial(_call, run), jobs, chunksize=1)
+        for first in results:
+            ready = [first]
+            while True:
+                try:
+                    ready.append(results.next(timeout=0))
+                except (mp.TimeoutError, StopIteration):
+                    break
+            yield ready
+        pool.close()
+    finally:
+        pool.terminate()
+        pool.join()
+
+
+# ---------------------------------------------------------------------------------- ray
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise DemoError("--executor ray", RAY_INSTALL) from None
+    return ray
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _ray_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: list[Any],
+             config: ExecutorConfig, label: Callable[[Any], str]) -> Iterator[list[Any]]:
+    ray = _import_ray()
+    from ray.exceptions import NodeDiedError, ObjectLostError, RayActorError, RayTaskError, WorkerCrashedError
+
+    lost = (RayActorError, ObjectLostError, NodeDiedError, WorkerCrashedError)  # the worker, not the job, failed
+    with session(config):
+        if config.gpus_per_worker:
+            have = ray.cluster_resources().get("GPU", 0.0)
+            if have < config.gpus_per_worker * config.workers:
+                raise DemoError("--device", f"the Ray cluster has {have:g} GPUs; {config.workers} workers on CUDA need "
+                                            f"{config.gpus_per_worker * config.workers:g} (or use --device cpu)")
+        actor_class = ray.remote(num_cpus=1, num_gpus=config.gpus_per_worker, max_restarts=0)(_RayWorker)
+        spec = ray.put((init, tuple(init_args), run))  # stored once, read by every actor (and replacement)
+        actors = [actor_class.remote(spec) for _ in range(config.workers)]
+        held: list[deque[int]] = [deque() for _ in actors]  # per actor: its jobs in flight, oldest first
+        pending: dict[Any, tuple[int, int]] = {}  # object ref -> (job, actor)
+        attempts = [0] * len(jobs)
+        done: dict[int, Any] = {}
+        submitted = committed = 0
+        lookahead = max(LOOKAHEAD, 4 * config.workers)
+
+        def submit(slot: int, i: int) -> None:
+            pending[actors[slot].run.remote(jobs[i])] = (i, slot)
+
+        def replace_actor(slot: int, exc: BaseException) -> None:
+            """The actor died: its oldest job was running (an actor runs its jobs in order); start a new
+            actor and give it the same jobs again."""
+            for ref in [r for r, (_, s) in pending.items() if s == slot]:
+                del pending[ref]
+            culprit = held[slot][0]
+            attempts[culprit] += 1
+            if attempts[culprit] > config.retries:
+                raise DemoError(label(jobs[culprit]), f"its Ray worker died {attempts[culprit]} times "
+                                                      f"({_first_line(exc)})")
+            ray.kill(actors[slot], no_restart=True)
+            actors[slot] = actor_class.remote(spec)
+            for i in held[slot]:
+                submit(slot, i)
+
+        try:
+            while committed < len(jobs):
+                while submitted < min(len(jobs), committed + lookahead):
+                    slot = min(range(len(actors)), key=lambda s: len(held[s]))
+                    if len(held[slot]) >= IN_FLIGHT:
+                        break
+                    held[slot].append(submitted)
+                    submit(slot, submitted)
+                    submitted += 1
+                ray.wait(list(pending), num_returns=1)
+                ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0)
+                died: dict[int, BaseException] = {}
+                for ref in ready:
+                    i, slot = pending.pop(ref)
+                    try:
+                        done[i] = ray.get(ref)
+                    except RayTaskError as exc:  # run or init raised: the job's own error, as itself
+                        cause = exc.cause
+                        raise (cause if isinstance(cause, Exception) else exc) from exc
+                    except lost as exc:
+                        died.setdefault(slot, exc)
+                    else:
+                        held[slot].remove(i)
+                for slot, exc in died.items():
+                    replace_actor(slot, exc)
+                batch = []
+                while committed in done:
+                    batch.append(done.pop(committed))
+                    committed += 1
+                if batch:
+                    yield batch
+        finally:
+            for actor in actors:
+                ray.kill(actor, no_restart=True)

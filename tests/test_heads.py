@@ -1,0 +1,146 @@
+"""BC's output heads (demo.train.heads): shapes, likelihoods, sampling that keeps two modes apart, and
+a gmm run through `demo train` / `demo eval`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from torch import distributions as D
+
+from demo.cli.main import main
+from demo.errors import DemoError
+from demo.train.config import HEAD_DEFAULTS, POLICY_DEFAULTS, for_policy
+from demo.train.heads import GMMHead, make_head
+from demo.train.policy import PolicySpec, build_policy
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+
+SPEC = PolicySpec(obs_dim=3, action_dim=2, n_obs=1, horizon=4)
+HEAD_OPTS = {"mse": {}, "gmm": {"components": 3}, "discrete": {"bins": 16}}
+
+
+@pytest.mark.parametrize("head", ["mse", "gmm", "discrete"])
+def test_shapes_and_seeded_sampling(head: str) -> None:
+    torch.manual_seed(0)
+    policy = build_policy("bc", SPEC, {"hidden": (16,), "head": head, **HEAD_OPTS[head]})
+    assert policy.net[-1].out_features == policy.head.width
+    obs, action = torch.randn(5, 1, 3), torch.rand(5, 4, 2) * 2 - 1
+    pad = torch.zeros(5, 4, dtype=torch.bool)
+    assert policy.loss(obs, action, pad).shape == ()
+
+    def draw(seed: int) -> torch.Tensor:
+        return policy.eval().predict(obs, torch.Generator().manual_seed(seed))
+
+    a = draw(1)
+    assert a.shape == (5, 4, 2) and torch.equal(a, draw(1))  # same generator seed, same chunk
+    if head != "mse":  # sampling heads differ with the seed somewhere in a batch of 5 x 8 numbers
+        assert not torch.equal(a, draw(2))
+        policy.head.temperature = 0.0  # the heaviest component / the likeliest bins: nothing left to chance
+        assert torch.equal(draw(1), draw(2))
+    if head == "discrete":  # every value is a bin centre
+        centres = torch.linspace(-1, 1, 16)
+        assert torch.isclose(a.reshape(-1, 1), centres).any(dim=1).all()
+
+
+def test_gmm_likelihood_is_the_mixture_over_the_whole_chunk_and_pad_marginalises() -> None:
+    torch.manual_seed(0)
+    head = GMMHead(horizon=3, action_dim=2, components=4, min_std=0.01, low_noise=True)
+    out, action = torch.randn(6, head.width), torch.randn(6, 3, 2)
+    mean, scale, log_w = head.split(out)
+    mixture = D.MixtureSameFamily(D.Categorical(logits=log_w),
+                                  D.Independent(D.Normal(mean.flatten(2), scale.flatten(2)), 1))
+    expected = (-mixture.log_prob(action.flatten(1)) / 6).mean()  # nats per action dimension
+    assert head.loss(out, action, None).item() == pytest.approx(expected.item(), rel=1e-5)
+    # Padded steps drop out exactly: their targets do not matter, the rest is the marginal.
+    keep = torch.tensor([[True, True, False]] * 6)
+    changed = action.clone()
+    changed[:, 2] += 50.0
+    assert head.loss(out, changed, keep).item() == pytest.approx(head.loss(out, action, keep).item(), rel=1e-6)
+    marginal = D.MixtureSameFamily(D.Categorical(logits=log_w),
+                                   D.Independent(D.Normal(mean[:, :, :2].flatten(2), scale[:, :, :2].flatten(2)), 1))
+    assert head.loss(out, action, keep).item() == pytest.approx((-marginal.log_prob(action[:, :2].flatten(1)) / 4).mean().item(), rel=1e-5)
+
+
+def test_discrete_loss_is_cross_entropy_of_the_nearest_bin() -> None:
+    head = make_head("discrete", 1, 1, bins=5)  # centres -1, -0.5, 0, 0.5, 1
+    action = torch.tensor([[[0.3]]])  # nearest centre: 0.5, bin 3
+    logits = torch.full((1, 5), -20.0)
+    logits[0, 3] = 20.0
+    assert head.loss(logits, action, None).item() < 1e-6
+    assert head.loss(torch.zeros(1, 5), action, None).item() == pytest.approx(math.log(5), rel=1e-6)
+    assert head.sample(logits).item() == 0.5
+
+
+@pytest.mark.parametrize("head", ["mse", "gmm", "discrete"])
+def test_training_lowers_the_loss_and_sampling_heads_keep_both_modes(head: str) -> None:
+    """A bimodal target: from the same observation the chunk is all +0.6 or all -0.6, half each. MSE
+    regresses to their average; gmm and discrete sample both sides, and gmm whole chunks from one side."""
+    torch.manual_seed(0)
+    policy = build_policy("bc", SPEC, {"hidden": (32, 32), "head": head, **HEAD_OPTS[head]})
+    opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
+    obs = torch.zeros(256, 1, 3)
+    side = torch.where(torch.arange(256) % 2 == 0, 0.6, -0.6)
+    action = side[:, None, None].expand(256, 4, 2).contiguous()
+    pad = torch.zeros(256, 4, dtype=torch.bool)
+    losses = []
+    for _ in range(300):
+        loss = policy.loss(obs, action, pad)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < losses[0] - 0.01  # mse: down to 0.36, the modes' variance about their mean
+    chunks = policy.eval().predict(obs[:200], torch.Generator().manual_seed(0))
+    if head == "mse":
+        assert chunks.abs().max() < 0.1  # the average of the modes, neither of them
+        return
+    share = (chunks > 0).float().mean().item()
+    assert 0.3 < share < 0.7  # both sides, in about their proportion
+    assert ((chunks.abs() - 0.6).abs() < 0.1).float().mean() > 0.9  # on a mode, not between them
+    if head == "gmm":  # one component per chunk: every step and dimension on the same side
+        assert ((chunks > 0).all(dim=(1, 2)) | (chunks < 0).all(dim=(1, 2))).all()
+
+
+def test_head_options_are_checked_and_defaults_follow_the_head() -> None:
+    with pytest.raises(DemoError, match="head must be one of"):
+        build_policy("bc", SPEC, {"head": "flow"})
+    with pytest.raises(DemoError, match="bins"):
+        build_policy("bc", SPEC, {"head": "discrete", "bins": "1"})
+    with pytest.raises(DemoError, match="temperature"):
+        build_policy("bc", SPEC, {"head": "gmm", "temperature": "-1"})
+    # A sampling head takes its own execution defaults over BC's; a flag still wins.
+    for head, settings in HEAD_DEFAULTS.items():
+        config = for_policy("bc", policy={"head": head})
+        assert all(getattr(config, k) == v for k, v in settings.items())
+    assert for_policy("bc").ensemble is POLICY_DEFAULTS["bc"]["ensemble"]
+    assert for_policy("bc", policy={"head": "gmm"}, ensemble=True).ensemble is True
+
+
+@pytest.fixture(scope="module")
+def avoid_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from demo.collect.scripted import CollectConfig, collect_scripted
+
+    path = tmp_path_factory.mktemp("heads") / "avoid.zarr"
+    collect_scripted(CollectConfig(task="avoid", episodes=4, seed=0), path, workers=0)
+    return path
+
+
+def test_gmm_run_records_its_head_and_evaluates_after_load(avoid_store: Path, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / "gmm"
+    assert main(["train", str(avoid_store), "--out", str(run), "--head", "gmm", "--steps", "20", "--batch-size", "16",
+                 "--chunk", "8", "--policy-opt", "hidden=32", "--policy-opt", "components=3"]) == 0
+    record = json.loads((run / "run.json").read_text())["policy"]
+    assert record["config"]["head"] == "gmm" and record["config"]["components"] == 3
+    assert record["execution"] == {"execute": 8, "ensemble": None}  # the head's defaults, capped by --chunk
+    capsys.readouterr()
+    assert main(["eval", str(run), "--episodes", "2", "--json", "-"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["episodes"] == 2 and result["algo"] == "bc"
+    # --head belongs to the MLP: one line for another algorithm
+    assert main(["train", str(avoid_store), "--out", str(tmp_path / "x"), "--algo", "diffusion", "--head", "gmm"]) == 1
+    assert "--head" in capsys.readouterr().err

@@ -1,0 +1,188 @@
+"""Output heads: a distribution over a normalised action chunk, read from a network's flat output.
+
+A head owns no weights: the network in front of it (BC's MLP, :mod:`demo.train.mlp`) ends in one
+linear layer of :attr:`ChunkHead.width` outputs, and the head says what they mean, how to score a
+demonstrated chunk under them (:meth:`ChunkHead.loss`) and how to act on them
+(:meth:`ChunkHead.sample`). Chunks are ``[B, H, A]``: ``H`` steps of ``A`` action dimensions,
+min-max normalised to [-1, 1] by the shared pipeline.
+
+- ``mse``: the chunk itself, regressed with mean squared error; acting returns it. Where the data
+  holds two modes from one state, the regression lands on their average.
+- ``gmm`` (robomimic's GMM actor): ``components`` Gaussians with diagonal covariance over the
+  *whole chunk vector* (one mixture weight per component per chunk, not per step, so a sampled chunk
+  follows one mode from its first step to its last). Means are unconstrained (no tanh: the data's
+  extremes are exactly -1 and 1, where a tanh mean has no gradient), scales ``softplus + min_std``.
+  Trained by negative log-likelihood. Acting draws a component from the mixture weights (sharpened
+  by ``temperature``: ``w^(1/T)``; 0 = the heaviest) with the caller's generator and returns its mean
+  (robomimic's ``low_noise_eval``), or with ``low_noise`` off a full sample of that component.
+- ``discrete``: each step's each dimension falls into one of ``bins`` equal bins over [-1, 1];
+  per-bin logits trained by cross-entropy on the target's nearest bin centre (quantisation error
+  at most 1 / (bins - 1) of the normalised range). Acting draws each bin from its softmax at
+  ``temperature`` (0 = the likeliest bin). The bins of different steps and dimensions are drawn
+  independently.
+
+Chunk steps past the episode end (``keep`` False) are left out of every loss: for the GMM this is
+the exact marginal of the kept dimensions (a diagonal Gaussian's marginal drops the others).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch.nn import functional as F
+
+HEADS = ("mse", "gmm", "discrete")
+
+
+def draw(logits: torch.Tensor, temperature: float, generator: torch.Generator | None, commit: bool = False) -> torch.Tensor:
+    """Indices ``[N]`` drawn from ``softmax(logits [N, C] / temperature)``; temperature 0: the argmax.
+
+    ``commit``: by the inverse CDF at uniforms that are the generator's next numbers, read without
+    consuming them, so every call until something else draws from it uses the same uniforms: as the
+    probabilities move continuously the index stays where it was unless its own mass moves away."""
+    if temperature == 0:
+        return logits.argmax(dim=-1)
+    probs = (logits.float() / temperature).softmax(dim=-1)
+    if not commit:
+        return torch.multinomial(probs, 1, generator=generator)[:, 0]
+    state = generator.get_state() if generator is not None else None
+    u = torch.rand(len(probs), 1, generator=generator, device=probs.device)
+    if generator is not None:
+        generator.set_state(state)
+    return (probs.cumsum(dim=-1) < u).sum(dim=-1).clamp(max=probs.shape[-1] - 1)
+
+
+def masked_mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+    """Mean of ``values [B, H, ...]`` over the steps where ``keep [B, H]`` (all when None).
+
+    Step 0 is never padded, so the denominator is never zero."""
+    if keep is None:
+        return values.mean()
+    per_step = values[0, 0].numel()
+    mask = keep.reshape(*keep.shape, *([1] * (values.dim() - 2))).to(values.dtype)
+    return (values * mask).sum() / (mask.sum() * per_step)
+
+
+class ChunkHead:
+    """Base class: a distribution over ``[B, H, A]`` chunks parameterised by ``[B, width]`` outputs."""
+
+    def __init__(self, horizon: int, action_dim: int):
+        self.horizon, self.action_dim = horizon, action_dim
+
+    @property
+    def width(self) -> int:
+        raise NotImplementedError
+
+    def outputs(self, flat: torch.Tensor) -> torch.Tensor:
+        """The network's flat ``[B, width]`` outputs as the head's parameters (the loss and sampler take either)."""
+        return flat
+
+    def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        """Scalar loss of the demonstrated chunk ``action`` under ``out``; ``keep [B, H]`` (None = all steps)."""
+        raise NotImplementedError
+
+    def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """The chunk ``[B, H, A]`` to execute; any randomness from ``generator``."""
+        raise NotImplementedError
+
+
+class MSEHead(ChunkHead):
+    """The chunk itself; squared error."""
+
+    @property
+    def width(self) -> int:
+        return self.horizon * self.action_dim
+
+    def outputs(self, flat: torch.Tensor) -> torch.Tensor:
+        """The chunk ``[B, H, A]``."""
+        return flat.reshape(flat.shape[0], self.horizon, self.action_dim)
+
+    def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        return masked_mean((self.outputs(out) - action).square(), keep)
+
+    def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        return self.outputs(out)
+
+
+class GMMHead(ChunkHead):
+    """``components`` diagonal Gaussians over the flattened chunk; outputs per component: mean, scale, logit."""
+
+    def __init__(self, horizon: int, action_dim: int, components: int, min_std: float, low_noise: bool,
+                 temperature: float = 1.0, commit: bool = False):
+        super().__init__(horizon, action_dim)
+        self.components, self.min_std, self.low_noise, self.temperature = components, min_std, low_noise, temperature
+        self.commit = commit
+
+    @property
+    def width(self) -> int:
+        return self.components * (2 * self.horizon * self.action_dim + 1)
+
+    def split(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``out [B, width]`` -> means, scales ``[B, K, H, A]`` and log mixture weights ``[B, K]`` (float32)."""
+        b, k, d = out.shape[0], self.components, self.horizon * self.action_dim
+        out = out.float()  # the likelihood in float32, also under bfloat16 autocast
+        mean, scale, logit = out.split([k * d, k * d, k], dim=1)
+        shape = (b, k, self.horizon, self.action_dim)
+        return mean.reshape(shape), F.softplus(scale.reshape(shape)) + self.min_std, F.log_softmax(logit, dim=1)
+
+    def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        """Negative log-likelihood of the chunk per kept action dimension (nats), mean over the batch."""
+        mean, scale, log_w = self.split(out)
+        z = (action.float().unsqueeze(1) - mean) / scale
+        log_p = -0.5 * z.square() - scale.log() - 0.5 * math.log(2 * math.pi)  # [B, K, H, A]
+        mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
+        log_p = (log_p * mask[:, None, :, None]).sum(dim=(2, 3))  # [B, K]: the kept dimensions' marginal
+        nll = -torch.logsumexp(log_w + log_p, dim=1)
+        return (nll / (mask.sum(dim=1) * self.action_dim)).mean()
+
+    def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        mean, scale, log_w = self.split(out)
+        k = draw(log_w, self.temperature, generator, self.commit)  # one component per chunk
+        rows = torch.arange(len(k), device=k.device)
+        chunk = mean[rows, k]
+        if not self.low_noise:
+            noise = torch.randn(chunk.shape, generator=generator, device=chunk.device, dtype=chunk.dtype)
+            chunk = (chunk + scale[rows, k] * noise).clamp(-1.0, 1.0)  # the data spans [-1, 1]
+        return chunk.to(out.dtype)
+
+
+class DiscreteHead(ChunkHead):
+    """``bins`` logits per chunk step and action dimension over equal bins of [-1, 1]."""
+
+    def __init__(self, horizon: int, action_dim: int, bins: int, temperature: float = 1.0):
+        super().__init__(horizon, action_dim)
+        self.bins, self.temperature = bins, temperature
+
+    @property
+    def width(self) -> int:
+        return self.horizon * self.action_dim * self.bins
+
+    def logits(self, out: torch.Tensor) -> torch.Tensor:
+        return out.float().reshape(out.shape[0], self.horizon, self.action_dim, self.bins)
+
+    def centres(self, like: torch.Tensor) -> torch.Tensor:
+        return torch.linspace(-1.0, 1.0, self.bins, device=like.device)
+
+    def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        """Cross-entropy (nats) of the target's nearest bin, mean over kept steps and dimensions."""
+        target = ((action.float().clamp(-1.0, 1.0) + 1.0) * 0.5 * (self.bins - 1)).round().long()
+        ce = F.cross_entropy(self.logits(out).flatten(0, 2), target.flatten(), reduction="none")
+        return masked_mean(ce.reshape(action.shape), keep)
+
+    def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        logits = self.logits(out)
+        index = draw(logits.flatten(0, 2), self.temperature, generator).reshape(logits.shape[:-1])
+        return self.centres(logits)[index].to(out.dtype)
+
+
+def make_head(name: str, horizon: int, action_dim: int, *, components: int = 5, min_std: float = 0.01,
+              low_noise: bool = True, bins: int = 64, temperature: float = 1.0, commit: bool = False) -> ChunkHead:
+    """The head ``name`` (one of :data:`HEADS`) for ``[horizon, action_dim]`` chunks."""
+    if name == "mse":
+        return MSEHead(horizon, action_dim)
+    if name == "gmm":
+        return GMMHead(horizon, action_dim, components, min_std, low_noise, temperature, commit)
+    if name == "discrete":
+        return DiscreteHead(horizon, action_dim, bins, temperature)
+    raise ValueError(f"head must be one of {', '.join(HEADS)}, got {name!r}")
