@@ -21,7 +21,10 @@ horizon grows while the skill per cycle stays the one where HG-DAgger already re
    - ``dagger`` (plain, every visited state labelled, mixing by ``beta``), ``dart`` (noise estimated
      from the learner, :mod:`demo.train.dart`) and ``perturb`` (expert-labelled perturbed states,
      :mod:`demo.train.perturb`): every frame they record is a label, so they get the episodes that
-     ``L`` pays for (at least one), over at most ``rounds`` rounds;
+     ``L`` pays for at the expert's mean episode length (at least one), over at most ``rounds`` rounds;
+
+   every member stops rolling out once it has spent ``L`` (``max_labels``: it may pass it by the
+   rest of one episode);
 
 4. **BC** on the first ``k`` pooled demonstrations, ``k`` the fewest whose frames reach ``L``;
    **BC + chunking** on the same ``k`` (chunks of ``chunk``, temporal ensembling); **DART with fixed
@@ -146,11 +149,11 @@ def fit_growth(points: list[tuple[float, int, int]]) -> dict[str, Any]:
     points (a grid over ``s0`` in (0, 1] and ``rate`` in [0, 0.1] per step, then refined about the
     best): ``rate`` is the failure added per control step, ``half_horizon`` the horizon where
     success halves (``ln 2 / rate``; None for no decay)."""
-    if not points:
-        return {}
     h = np.array([p[0] for p in points], float)
     k = np.array([p[1] for p in points], float)
     n = np.array([p[2] for p in points], float)
+    if not k.sum():  # never a success: any rate fits; there is nothing to say
+        return {"model": "success = s0 * exp(-rate * horizon)", "s0": 0.0, "rate_per_step": None, "half_horizon": None}
 
     def loglik(s0: np.ndarray, rate: np.ndarray) -> np.ndarray:
         p = np.clip(s0[..., None] * np.exp(-rate[..., None] * h), 1e-9, 1 - 1e-9)
@@ -217,8 +220,9 @@ class _Value:
             pool = EpisodeStore.open(path)
         return pool
 
-    def family(self, method: str, rounds: int, episodes: int, options: dict[str, str]) -> Path:
-        """A family member's run from the first ``demos`` demonstrations (kept once finished)."""
+    def family(self, method: str, rounds: int, episodes: int, options: dict[str, str], budget: int | None = None) -> Path:
+        """A family member's run from the first ``demos`` demonstrations (kept once finished); it stops
+        rolling out once it has spent ``budget`` labels."""
         from demo.executor import ExecutorConfig
         from demo.train.checkpoint import RUN_FILE
         from demo.train.dagger import DaggerConfig, make_family, train_dagger
@@ -231,7 +235,7 @@ class _Value:
             demos = _subset(pool, self.d / f"demos{c.demos}.zarr", c.demos)
         gated = method in ("hg_dagger", "safedagger")
         config = DaggerConfig(train=_train_config(c, demos, run_dir), rounds=rounds, episodes_per_round=episodes,
-                              round_steps=c.round_steps, beta=c.beta, gate=c.gate if gated else None)
+                              round_steps=c.round_steps, beta=c.beta, gate=c.gate if gated else None, max_labels=budget)
         train_dagger(config, family=make_family(FAMILY_OF[method], options), overwrite=True,
                      executor=ExecutorConfig("process", c.workers))
         return run_dir
@@ -284,13 +288,13 @@ def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, A
         for method in c.methods:
             if method in ALL_LABELLED:
                 opts = {"sigma": str(c.sigma)} if method == "perturb" else {}
-                runs[method] = v.family(method, rounds, math.ceil(episodes / rounds), opts)
+                runs[method] = v.family(method, rounds, math.ceil(episodes / rounds), opts, budget)
             elif method == "safedagger":
-                runs[method] = v.family(method, c.rounds, c.episodes_per_round, {})
+                runs[method] = v.family(method, c.rounds, c.episodes_per_round, {}, budget)
             elif method == "aggrevate":
                 states = max(1, round(extra / (c.rounds * c.episodes_per_round)))
                 opts = {"states": str(states), "candidates": str(c.candidates), "sigma": str(c.sigma)}
-                runs[method] = v.family(method, c.rounds, c.episodes_per_round, opts)
+                runs[method] = v.family(method, c.rounds, c.episodes_per_round, opts, budget)
             elif method in ("bc", "bc_chunk"):
                 runs[method], entry["bc_demos"] = v.bc(method, budget, chunk=c.chunk if method == "bc_chunk" else 1)
             elif method == "dart_fixed":
@@ -363,16 +367,16 @@ def _metrics(run_dir: Path) -> dict[str, Any]:
 
 
 def format_table(result: dict[str, Any]) -> str:
-    option = result["config"]["option"]
-    methods = result["config"]["methods"]
-    lines = [f"{option:<7} horizon  labels   " + "  ".join(f"{m:<15}" for m in methods)]
-    for r in result["rows"]:
+    """One line per method: success (95% interval) at each value of the option, labels, fitted failure growth."""
+    option, rows = result["config"]["option"], result["rows"]
+    columns = [f"{option}={r['value']} (H {r['horizon']})" for r in rows]
+    lines = ["method     " + "".join(f"{c:<22}" for c in columns) + "failure rate / 100 steps"]
+    for m in result["config"]["methods"]:
         cells = []
-        for m in methods:
+        for r in rows:
             e = r.get(m)
-            cells.append(f"{e['success_rate']:.0%} [{e['ci95'][0]:.0%},{e['ci95'][1]:.0%}]" if e else "-")
-        lines.append(f"{r['value']:<7} {r['horizon']:<8} {r['expert_labels']:<8} " + "  ".join(f"{x:<15}" for x in cells))
-    rates = [f"{m} {f['rate_per_step'] * 100:.2f}" for m, f in result.get("fits", {}).items() if f]
-    if rates:
-        lines.append("failure growth (fitted rate per 100 steps): " + ", ".join(rates))
+            cells.append(f"{e['success_rate']:.0%} [{e['ci95'][0]:.0%},{e['ci95'][1]:.0%}] {e['expert_labels']}" if e else "-")
+        fit = result.get("fits", {}).get(m) or {}
+        rate = fit.get("rate_per_step")
+        lines.append(f"{m:<11}" + "".join(f"{c:<22}" for c in cells) + ("-" if rate is None else f"{rate * 100:.2f}"))
     return "\n".join(lines)

@@ -95,6 +95,8 @@ def train(
     beta: str = typer.Option("indicator", help="dagger: expert-mixing schedule indicator | linear:N | exp:P."),
     gate: str = typer.Option(None, metavar="deviation:THRESH", help="HG-DAgger: the expert takes over and labels only where the learner strays by THRESH rad "
                              "(safedagger: the deviation its classifier predicts).", show_default="plain DAgger"),
+    max_labels: int = typer.Option(None, "--max-labels", help="dagger family: stop rolling out once this many expert labels "
+                                   "are spent (demonstrations included).", show_default="no limit"),
     algo_opt: list[str] = typer.Option([], "--algo-opt", metavar="KEY=VALUE", help="safedagger (hidden, steps), aggrevate "
                                        "(states, candidates, sigma, failure_cost), dart (alpha), perturb (sigma, tries): "
                                        "the algorithm's own option (repeatable).", show_default="none"),
@@ -152,7 +154,8 @@ def train(
         from demo.train.dagger import DaggerConfig, learner_config, make_family, train_dagger
 
         dconfig = DaggerConfig(train=learner_config(**given), task=task, rounds=rounds, episodes_per_round=episodes_per_round,
-                               round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate)
+                               round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate,
+                               max_labels=max_labels)
         dconfig.check()
         family = make_family(algo, parse_policy_opts(algo_opt, "--algo-opt"))
         with bars() as progress:

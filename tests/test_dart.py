@@ -71,3 +71,17 @@ def test_dart_collects_with_the_estimated_noise(demos: Path, tmp_path: Path) -> 
                                      family=family)["rounds"][1]["noise_cov"])
     np.testing.assert_allclose(np.trace(scaled), 0.5 / 100, rtol=1e-6)
     np.testing.assert_allclose(scaled / np.trace(scaled), cov / np.trace(cov), rtol=1e-5, atol=1e-9)
+
+
+def test_a_label_budget_stops_the_rollouts(demos: Path, tmp_path: Path) -> None:
+    tc = TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=20, batch_size=32, policy={"hidden": (16,)},
+                     val_fraction=0.25)
+    with EpisodeStore.open(demos) as source:
+        demo_labels = source.num_frames
+    summary = train_dagger(DaggerConfig(train=tc, rounds=3, episodes_per_round=2, round_steps=10,
+                                        max_labels=demo_labels + 1), family=Dart())
+    # The first rollout passes the budget: no second rollout, no second round.
+    assert [r["round"] for r in summary["rounds"]] == [0, 1] and summary["rounds"][1]["episodes"] == 1
+    store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
+    assert (store.column("dagger_round") >= 1).sum() == 1
+    assert summary["expert_labels"] == demo_labels + store.episode_lengths[-1]

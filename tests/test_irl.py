@@ -3,6 +3,7 @@ apprenticeship learning on a small MDP solved exactly (demo.train.irl_linear), a
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -30,17 +31,17 @@ def _batches(n: int, seed: int) -> tuple[dict[str, torch.Tensor], dict[str, torc
 @pytest.mark.parametrize("kind, inputs", [("gail", "sa"), ("gail", "ss"), ("airl", "ss")])
 def test_discriminator_separates_expert_from_random(kind: str, inputs: str) -> None:
     torch.manual_seed(0)
-    expert, policy = _batches(512, 0)
-    disc = Discriminator(kind, inputs, expert["obs"].numpy(), 2, (64, 64), gamma=0.99)
-    optimizer = torch.optim.Adam(disc.parameters(), lr=3e-3)
+    expert, policy = _batches(256, 0)
+    disc = Discriminator(kind, inputs, expert["obs"].numpy(), 2, (32, 32), gamma=0.99)
+    optimizer = torch.optim.Adam(disc.parameters(), lr=1e-2)
     first = None
-    for _ in range(200):
+    for _ in range(100):
         stats = discriminator_loss(disc, expert, policy, grad_penalty=0.1)
         first = float(stats["bce"].detach()) if first is None else first
         optimizer.zero_grad()
         stats["loss"].backward()
         optimizer.step()
-    test_expert, test_policy = _batches(512, 1)  # held-out transitions
+    test_expert, test_policy = _batches(256, 1)  # held-out transitions
     stats = discriminator_loss(disc, test_expert, test_policy, grad_penalty=0.1)
     assert float(stats["bce"].detach()) < 0.7 * first
     assert (float(stats["expert_acc"]) + float(stats["policy_acc"])) / 2 > 0.85
@@ -130,6 +131,10 @@ def test_discounted_sums_pad_with_the_last_state() -> None:
 
 
 # ---------------------------------------------------------------------------------- from the command line
+TS = "obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos"  # a task-space state, which a 6-DOF arm reports too
+TINY = ["--steps", "100", "--envs", "1", "--rollout", "100", "--eval-episodes", "1"]  # one episode of reach
+
+
 @pytest.fixture(scope="module")
 def reach_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from demo.cli.main import main
@@ -139,36 +144,66 @@ def reach_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-TINY = ["--action", "joint_pos", "--steps", "200", "--envs", "2", "--rollout", "100", "--eval-episodes", "1"]
-
-
-@pytest.mark.parametrize("algo", ["airl", "maxent"])
-def test_irl_runs_evaluate(algo: str, reach_store: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.fixture(scope="module")
+def airl_run(reach_store: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     from demo.cli.main import main
 
-    out, js = tmp_path / algo, tmp_path / "train.json"
-    extra = ["--inner-iterations", "1"] if algo == "maxent" else []
-    assert main(["irl", "train", str(reach_store), "--algo", algo, "--out", str(out), *TINY, *extra, "--json", str(js)]) == 0
-    summary = json.loads(js.read_text())
-    assert summary["env_steps"] == 200 and summary["demos"] == 2
+    out = tmp_path_factory.mktemp("airl") / "run"
+    assert main(["irl", "train", str(reach_store), "--algo", "airl", "--disc-obs-keys", TS, "--out", str(out), *TINY,
+                 "--json", str(out.parent / "train.json")]) == 0
+    return out, json.loads((out.parent / "train.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def maxent_run(reach_store: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    from demo.cli.main import main
+
+    out = tmp_path_factory.mktemp("maxent") / "run"
+    assert main(["irl", "train", str(reach_store), "--algo", "maxent", "--inner-iterations", "1", "--out", str(out),
+                 *TINY, "--json", str(out.parent / "train.json")]) == 0
+    return out, json.loads((out.parent / "train.json").read_text())
+
+
+def test_demonstrations_weigh_the_held_goal_for_the_rest_of_the_horizon(reach_store: Path, tmp_path: Path) -> None:
+    from demo.train.ppo import PPOConfig, RLRun
+
+    with RLRun(PPOConfig(out=str(tmp_path / "run"), num_envs=1)) as rl:
+        expert = rl.demonstrations(str(reach_store))
+    assert expert.episodes == 2 and rl.record["data"]["episodes"] == 2
+    for e in range(2):
+        w = expert.weights[expert.episode == e]
+        assert w.sum() == rl.pool.horizon and (w[:-1] == 1).all()  # the last transition holds to the horizon
+    assert np.abs(expert.actions).max() <= 1.0 and expert.features.shape[1] == 3
+    assert expert.features[expert.episode == 0][-1, 2] == 1.0  # the demonstration ends in success
+
+
+def test_airl_run_evaluates(airl_run: tuple[Path, dict]) -> None:
+    from demo.cli.main import main
+
+    out, summary = airl_run
+    assert summary["env_steps"] == 100 and summary["demos"] == 2
+    assert summary["reward_corr_last5"] is not None and summary["g_corr_last5"] is not None
     run = json.loads((out / "run.json").read_text())
-    assert run["algo"] == algo and len(run["data"]["seeds"]) == 2
-    if algo == "maxent":
-        assert len(summary["weights"]) == 3 and summary["features"] == ["pos_err", "rot_err", "success"]
-        assert summary["weights_unit"][0] < 0 < summary["weights_unit"][2]  # one step from 0: the sign of mu_E - mu_pi
-        assert (out / "weights.png").is_file()
-    else:
-        assert (out / "reward.safetensors").is_file() and summary["reward_corr_last5"] is not None
-        assert summary["g_corr_last5"] is not None
-        assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert run["algo"] == "airl" and len(run["data"]["seeds"]) == 2
+    assert run["adversarial"]["disc_obs"]["keys"] == TS.split(",") and (out / "reward.safetensors").is_file()
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+
+
+def test_maxent_run_reports_weights(maxent_run: tuple[Path, dict]) -> None:
+    out, summary = maxent_run
+    assert summary["features"] == ["pos_err", "rot_err", "success"] and summary["env_steps"] == 100
+    # one Adam step from w = 0 goes along sign(mu_E - mu_pi): errors cost, success pays
+    assert summary["weights_unit"][0] < 0 < summary["weights_unit"][2]
+    assert json.loads((out / "run.json").read_text())["reward_weights"]["weights"] == summary["weights"]
+    assert (out / "weights.png").is_file()
 
 
 def test_gail_from_bc(reach_store: Path, tmp_path: Path) -> None:
     from demo.train.adversarial import AdversarialConfig, load_reward, train
     from demo.train.ppo import PPOConfig
 
-    rl = PPOConfig(task="reach", action="joint_pos", out=str(tmp_path / "gail"), total_steps=100, num_envs=2,
-                   num_steps=50, hidden=(32,), eval_episodes=1)
+    rl = PPOConfig(task="reach", out=str(tmp_path / "gail"), total_steps=100, num_envs=2, num_steps=50, hidden=(32,),
+                   eval_episodes=1)
     summary = train(AdversarialConfig(rl=rl, data=str(reach_store), kind="gail", init_bc=True, bc_steps=300,
                                       disc_hidden=(32,)))
     assert summary["bc_loss"] < 0.05  # the policy's mean fits the two demonstrations' actions
@@ -176,30 +211,23 @@ def test_gail_from_bc(reach_store: Path, tmp_path: Path) -> None:
     assert record["adversarial"]["kind"] == "gail" and disc.kind == "gail"
 
 
-def test_transfer_trains_on_a_learned_reward(reach_store: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("source, robot", [
+    ("maxent", None),
+    pytest.param("airl", "robosuite_ur5e.toml", marks=pytest.mark.skipif(
+        importlib.util.find_spec("robosuite") is None,
+        reason="robosuite is not installed (pip install --no-deps robosuite runs this arm)")),
+])
+def test_ppo_on_a_learned_reward(source: str, robot: str | None, maxent_run: tuple[Path, dict],
+                                 airl_run: tuple[Path, dict], tmp_path: Path) -> None:
+    """Reward transfer: PPO on the reward of an IRL run, AIRL's g(s) on another arm (6 joints, not 7)."""
     from demo.cli.main import main
 
-    source, js = tmp_path / "maxent", tmp_path / "ppo.json"
-    assert main(["irl", "train", str(reach_store), "--algo", "maxent", "--out", str(source), *TINY,
-                 "--inner-iterations", "1"]) == 0
-    assert main(["irl", "train", "--reward", str(source), "--out", str(tmp_path / "ppo"), *TINY, "--json", str(js)]) == 0
+    run = (maxent_run if source == "maxent" else airl_run)[0]
+    where = ["--robot", str(Path(__file__).resolve().parents[1] / "sim" / "assets" / "robots" / robot)] if robot else []
+    js = tmp_path / "ppo.json"
+    assert main(["irl", "train", "--reward", str(run), *where, "--out", str(tmp_path / "ppo"), *TINY, "--json", str(js)]) == 0
     assert json.loads(js.read_text())["reward_corr_last5"] is not None
-    assert json.loads((tmp_path / "ppo" / "run.json").read_text())["learned_reward"]["kind"] == "maxent"
-
-
-def test_airl_reward_on_task_space_transfers_to_another_arm(reach_store: Path, tmp_path: Path) -> None:
-    from demo.cli.main import main
-
-    source, js = tmp_path / "airl", tmp_path / "ppo.json"
-    keys = "obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos"  # what a 6-DOF arm reports too
-    assert main(["irl", "train", str(reach_store), "--algo", "airl", "--disc-obs-keys", keys, "--out", str(source),
-                 *TINY[:-4], "--rollout", "50", "--steps", "100", "--eval-episodes", "1"]) == 0
-    run = json.loads((source / "run.json").read_text())
-    assert run["adversarial"]["disc_obs"]["keys"] == keys.split(",")
-    ur5e = Path(__file__).resolve().parents[1] / "sim" / "assets" / "robots" / "robosuite_ur5e.toml"
-    assert main(["irl", "train", "--reward", str(source), "--robot", str(ur5e), "--out", str(tmp_path / "ppo"),
-                 *TINY[:-4], "--rollout", "50", "--steps", "100", "--eval-episodes", "1", "--json", str(js)]) == 0
-    assert json.loads((tmp_path / "ppo" / "run.json").read_text())["learned_reward"]["obs_keys"] == keys.split(",")
+    assert json.loads((tmp_path / "ppo" / "run.json").read_text())["learned_reward"]["kind"] == source
 
 
 @pytest.mark.parametrize("args, message", [

@@ -5,8 +5,9 @@ iteration (:class:`demo.train.ppo.RLRun`):
 
 1. roll the policy out (``num_envs x num_steps`` transitions);
 2. train a discriminator for ``disc_epochs`` passes over those transitions against as many drawn
-   from the demonstrations (:mod:`demo.train.expert_data`), with binary cross-entropy (expert = 1)
-   and a gradient penalty;
+   from the demonstrations (:mod:`demo.train.expert_data`; each episode's settled last transition
+   weighted for the rest of the horizon, as the expert would have held it), with binary
+   cross-entropy (expert = 1) and a gradient penalty;
 3. reward the rollout with the updated discriminator, then a PPO update on that reward.
 
 They differ in the discriminator and the reward (``D`` the probability of "expert", ``l`` its logit):
@@ -180,6 +181,7 @@ class Adversary:
     def __init__(self, config: AdversarialConfig, rl: RLRun, expert: ExpertData, spec: ObsSpec):
         self.config, self.rl, self.expert, self.spec = config, rl, expert, spec
         self.obs, self.next_obs = spec.concat(expert.frames), spec.concat(expert.next_frames)
+        self.occupancy = expert.weights / expert.weights.sum()  # the expert's state occupancy over the horizon
         torch.manual_seed(config.rl.seed + 1)
         self.disc = Discriminator(config.kind, config.inputs, self.obs, expert.actions.shape[1],
                                   config.disc_hidden, config.rl.gamma)
@@ -203,7 +205,8 @@ class Adversary:
         return {k: torch.as_tensor(v, dtype=torch.float32) for k, v in b.items()}
 
     def train(self, roll: Rollout) -> dict[str, float]:
-        """``disc_epochs`` passes over the rollout against as many expert transitions (drawn with replacement)."""
+        """``disc_epochs`` passes over the rollout against as many expert transitions, drawn with replacement
+        in proportion to their share of the expert's occupancy (:mod:`demo.train.expert_data`)."""
         c = self.config
         policy = self.policy_batch(roll)
         n = len(policy["obs"])
@@ -212,7 +215,7 @@ class Adversary:
             order = self.rng.permutation(n)
             for start in range(0, n, c.disc_batch):
                 idx = order[start:start + c.disc_batch]
-                expert = self._expert_batch(self.rng.integers(len(self.expert.obs), size=len(idx)))
+                expert = self._expert_batch(self.rng.choice(len(self.obs), size=len(idx), p=self.occupancy))
                 stats = discriminator_loss(self.disc, expert, {k: v[idx] for k, v in policy.items()}, c.grad_penalty)
                 self.optimizer.zero_grad()
                 stats["loss"].backward()

@@ -37,7 +37,8 @@
 
 Expert labels are counted: every frame of DATA's episodes that training used (validation
 included) plus every labelled frame of every round, so comparisons with BC can be made at equal
-label budgets (``metrics.json`` ``rounds[*].labels_total``). DART-style data (collected with
+label budgets (``metrics.json`` ``rounds[*].labels_total``); ``max_labels`` stops the rollouts once the
+count reaches it (at the end of the episode that reaches it). DART-style data (collected with
 ``--noise``: noise on the executed action, clean labels) trains with ``--algo bc`` and the same
 label accounting.
 
@@ -99,6 +100,7 @@ class DaggerConfig:
     refit_normalizers: bool = False  # refit the normalisers to each round's aggregate (default: keep the demonstrations')
     beta: str = "indicator"  # indicator | linear:N | exp:P
     gate: str | None = None  # deviation:THRESH (rad) for HG-DAgger
+    max_labels: int | None = None  # stop rolling out once this many expert labels are spent (equal-budget comparisons)
 
     def beta_at(self, r: int) -> float:
         kind, _, arg = self.beta.partition(":")
@@ -135,6 +137,8 @@ class DaggerConfig:
             raise DemoError("--round-steps", f"must be at least 1, got {self.round_steps}")
         self.beta_at(1)
         self.gate_threshold()
+        if self.max_labels is not None and self.max_labels < 1:
+            raise DemoError("--max-labels", f"must be at least 1, got {self.max_labels}")
         b = self.beta_at(1)
         if not 0 <= b <= 1:
             raise DemoError("--beta", f"beta must lie in [0, 1], got {b} in round 1")
@@ -520,7 +524,15 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
             run.metrics["rounds"].append(_round_entry(0, 0.0, [], demo_labels, demo_labels, learner.step, run.evaluate()))
             run.checkpoint({"round": 0, "round_done": True})
         # ---- rounds 1..R: roll out, aggregate, retrain
+        def spent(r: int, infos: list[dict[str, Any]]) -> bool:
+            """Whether the labels through round ``r - 1`` and round ``r``'s ``infos`` reach ``max_labels``."""
+            if config.max_labels is None:
+                return False
+            return labels_so_far(r - 1) + sum(int(i["labels"]) for i in infos) >= config.max_labels
+
         for r in range(max(done_round, 0) + 1, config.rounds + 1):
+            if spent(r, []):
+                break  # the label budget is spent: later rounds would add nothing
             beta = config.beta_at(r)
             existing = np.flatnonzero(store.column("dagger_round") == r)  # reused after an interruption
             infos = [store.episode_info(int(i)) for i in existing]
@@ -533,6 +545,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
                 store.append_episode(episode, **info)
                 infos.append(info)
                 run.tick(info=f"round {r}: rollout {len(infos)}/{config.episodes_per_round}")
+                if spent(r, infos):
+                    break
             data = round_data(r)
             if config.warm_start:
                 learner.phase_start, learner.phase_steps = learner.step, config.round_steps

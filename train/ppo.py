@@ -535,7 +535,7 @@ class RLRun:
 
         pool = self.pool
         expert = load_expert(path, self.config.task, pool.config.task_options, pool.obs_spec, pool.action_spec,
-                             self.action_norm, pool.relative, self.reward, demos)
+                             self.action_norm, pool.relative, self.reward, demos, pool.horizon)
         self.record["data"] = expert.record(str(Path(path).resolve()))
         return expert
 
