@@ -13,7 +13,7 @@ from torch import distributions as D
 
 from demo.cli.main import main
 from demo.errors import DemoError
-from demo.train.config import HEAD_DEFAULTS, POLICY_DEFAULTS, for_policy
+from demo.train.config import POLICY_DEFAULTS, for_policy
 from demo.train.heads import GMMHead, make_head
 from demo.train.policy import PolicySpec, build_policy
 
@@ -105,19 +105,16 @@ def test_training_lowers_the_loss_and_sampling_heads_keep_both_modes(head: str) 
         assert ((chunks > 0).all(dim=(1, 2)) | (chunks < 0).all(dim=(1, 2))).all()
 
 
-def test_head_options_are_checked_and_defaults_follow_the_head() -> None:
+def test_head_options_are_checked() -> None:
     with pytest.raises(DemoError, match="head must be one of"):
         build_policy("bc", SPEC, {"head": "flow"})
     with pytest.raises(DemoError, match="bins"):
         build_policy("bc", SPEC, {"head": "discrete", "bins": "1"})
     with pytest.raises(DemoError, match="temperature"):
         build_policy("bc", SPEC, {"head": "gmm", "temperature": "-1"})
-    # A sampling head takes its own execution defaults over BC's; a flag still wins.
-    for head, settings in HEAD_DEFAULTS.items():
-        config = for_policy("bc", policy={"head": head})
-        assert all(getattr(config, k) == v for k, v in settings.items())
-    assert for_policy("bc").ensemble is POLICY_DEFAULTS["bc"]["ensemble"]
-    assert for_policy("bc", policy={"head": "gmm"}, ensemble=True).ensemble is True
+    # Every head is executed as BC is (measured: train/config.py)
+    config = for_policy("bc", policy={"head": "gmm"})
+    assert (config.chunk, config.ensemble) == (POLICY_DEFAULTS["bc"]["chunk"], POLICY_DEFAULTS["bc"]["ensemble"])
 
 
 @pytest.fixture(scope="module")
@@ -136,7 +133,7 @@ def test_gmm_run_records_its_head_and_evaluates_after_load(avoid_store: Path, tm
                  "--chunk", "8", "--policy-opt", "hidden=32", "--policy-opt", "components=3"]) == 0
     record = json.loads((run / "run.json").read_text())["policy"]
     assert record["config"]["head"] == "gmm" and record["config"]["components"] == 3
-    assert record["execution"] == {"execute": 8, "ensemble": None}  # the head's defaults, capped by --chunk
+    assert record["execution"] == {"execute": 1, "ensemble": 0.01}  # BC's execution
     capsys.readouterr()
     assert main(["eval", str(run), "--episodes", "2", "--json", "-"]) == 0
     result = json.loads(capsys.readouterr().out)

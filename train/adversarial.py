@@ -37,8 +37,16 @@ steps) with the observation statistics of the demonstrations.
 
 Logged per iteration: discriminator loss (cross-entropy, gradient penalty), accuracy on expert and
 policy samples, and the Pearson correlation with the dense task reward over the rollout of the reward
-PPO is trained on (``reward_corr``) and of AIRL's ``g(s')`` (``g_corr``). The run also writes ``reward.safetensors`` (the discriminator and
-its input standardisation), read back by :func:`load_reward` for reward transfer.
+PPO is trained on (``reward_corr``) and of AIRL's ``g(s')`` (``g_corr``). The run also writes
+``reward.safetensors`` (the discriminator and its input standardisation), read back by
+:func:`load_reward` for reward transfer.
+
+Measured on ``reach`` (20 demonstrations, 240,000 environment steps each, ``--init-bc``): neither
+reaches success in that budget (0/100), where PPO on the dense reward needs ~400,000 steps for
+80-90%. GAIL's reward correlates weakly with the task's (r 0.1-0.2); reading the task-space state
+``(s, s')`` with ``grad_penalty`` 1 and the horizon-weighted demonstrations brought the policy to
+~12 cm of the goal (from 26 cm). AIRL's ``- log pi`` term outweighed ``f``: the policy's std grew
+from 0.37 to 1.07 (normalised units) as PPO maximised entropy.
 """
 
 from __future__ import annotations

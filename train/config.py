@@ -44,6 +44,10 @@ LOOP_DEFAULTS: dict[str, Any] = {
 POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
     # pick, 100 scripted demos: 16-step chunks executed with temporal ensembling 99/100, single-step
     # 52-61/100. Chunks are the cure for compounding errors.
+    # The same execution serves every --head (demo.train.heads). avoid (200 paired demos), GMM head
+    # (heaviest component): a query every step with ensembling 69/100 (decay 0.1: 72), 8 or 16 actions
+    # per query without it 5 / 26; sampled components 35 with ensembling, 1-16 without. Executed
+    # open-loop, any regressed chunk drifts here (MSE, 8 per query: 0/100), so the heads keep BC's.
     "bc": {"chunk": 16, "ensemble": True},
     # Diffusion Policy's horizon 16 / n_obs 2 and AdamW with warm-up + cosine, with a learning rate and
     # EMA for runs of ~10^4 steps on a CPU (published: 1e-4 and EMA to 0.9999 over ~10^6 steps).
@@ -71,17 +75,13 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
         "chunk": 16,
         "execute": 1,
         "ensemble": True,
+        # a transformer step costs ~100x an MLP's on a CPU: small batches (the paper: 8), more steps
         "batch_size": 64,
+        # pick (100 demos): lr 3e-4 for 3000 steps 63/100; 1e-3 (pre-norm layers) 89 at 5000 steps,
+        # 97 at 10000 (17 min of one core on a shared machine)
         "lr": 1e-3,
-        "steps": 5000,
+        "steps": 10000,
     },
-}
-
-# BC's sampling heads (--head, demo.train.heads) over BC's own settings: temporal ensembling would
-# average chunks sampled from different modes back together, so they execute chunks whole-ish.
-HEAD_DEFAULTS: dict[str, dict[str, Any]] = {
-    "gmm": {"ensemble": False, "execute": 8},
-    "discrete": {"ensemble": False, "execute": 8},
 }
 
 # With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
@@ -184,12 +184,10 @@ class TrainConfig:
         return d
 
 
-def policy_defaults(name: str, images: bool = False, options: dict[str, Any] | None = None) -> dict[str, Any]:
+def policy_defaults(name: str, images: bool = False) -> dict[str, Any]:
     """The training-loop settings policy ``name`` is trained with unless told otherwise (``images``:
-    on camera images; ``options``: the policy's options, BC's ``head`` choosing :data:`HEAD_DEFAULTS`)."""
-    head = HEAD_DEFAULTS.get(str((options or {}).get("head"))) if name == "bc" else None
-    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(head or {}),
-            **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
+    on camera images)."""
+    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
 
 
 def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] = ()) -> bool:
@@ -212,8 +210,8 @@ def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] =
 
 def for_policy(name: str, **given: Any) -> TrainConfig:
     """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
-    then the policy's defaults (:data:`IMAGE_DEFAULTS` over BC's :data:`HEAD_DEFAULTS` over
-    :data:`POLICY_DEFAULTS`, image ones when the data has cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
+    then the policy's defaults (:data:`IMAGE_DEFAULTS` over :data:`POLICY_DEFAULTS` when the data has
+    cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
     from demo.train.policy import policy_class
 
     policy_class(name)  # an unknown policy fails here, naming the known ones
@@ -227,7 +225,7 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     # again what the CLI resolved) opens nothing.
     image_tuned = {k for table in IMAGE_DEFAULTS.values() for k in table}
     images = not image_tuned <= set(given) and reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
-    values = {**policy_defaults(name, images, given.get("policy")), **given, "algo": name}
+    values = {**policy_defaults(name, images), **given, "algo": name}
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])
     return TrainConfig(**values)
