@@ -11,6 +11,7 @@ initial states are drawn from a different stream than the demonstrations':
 ``demo eval --seed S``         ``episode_seed(S + 10_000_000, i)``
 DAgger rollouts, round ``r``   ``episode_seed(S + 20_000_000, r * 100_000 + i)``
 periodic eval in training      ``episode_seed(S + 30_000_000, i)``
+RL episodes (PPO and IRL)      ``episode_seed(S + 40_000_000, i)``
 =============================  ==========================================================
 
 Streams could still collide by chance on a 32-bit seed (~1e-7 per pair of 1,000-episode sets), so
@@ -25,6 +26,7 @@ import numpy as np
 EVAL_OFFSET = 10_000_000
 DAGGER_OFFSET = 20_000_000
 MONITOR_OFFSET = 30_000_000
+RL_OFFSET = 40_000_000
 DAGGER_ROUND_STRIDE = 100_000  # episode indices per DAgger round: rounds never share an index
 
 

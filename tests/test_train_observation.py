@@ -64,6 +64,9 @@ def test_vector_and_batch_agree_and_transform() -> None:
     # A quaternion and its negative give the same input (stores flip signs to keep w >= 0).
     flipped = dict(frames, **{"obs.ee_quat": -frames["obs.ee_quat"]})
     assert np.allclose(spec.concat(flipped), batch)
+    # A spec may start with an offset ("a-b" is no key of the frames themselves).
+    offset_first = ObsSpec.from_features(STATE_FEATURES, ["obs.object_pos-obs.ee_pos", "obs.joint_pos"])
+    assert np.allclose(offset_first.concat(frames)[:, :6], batch[:, -6:])
 
 
 def test_rot6d_is_the_rotation_matrix_columns() -> None:

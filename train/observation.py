@@ -223,7 +223,8 @@ class ObsSpec:
 
     def concat(self, data: Mapping[str, np.ndarray]) -> np.ndarray:
         """Frames ``{key: [N, ...]}`` -> ``[N, dim]`` float32."""
-        n = len(data[self.keys[0]])
+        first = self.keys[0]
+        n = len(data[(_difference(first) or (first,))[0] if self.transforms[0] == DIFFERENCE else first])
         return np.concatenate([self._part(data, k, d, t, n) for k, d, t in zip(self.keys, self.dims, self.transforms)], axis=1)
 
     def vector(self, frame: Mapping[str, np.ndarray]) -> np.ndarray:

@@ -60,7 +60,7 @@ from torch.distributions import Normal
 
 from demo.errors import DemoError
 from demo.progress import Progress
-from demo.seeds import episode_seed
+from demo.seeds import RL_OFFSET, episode_seed
 from demo.store import ActionSpec
 from demo.train import checkpoint as ckpt
 from demo.train.actor import ExecConfig
@@ -70,7 +70,6 @@ from demo.train.policy import Policy, PolicySpec, register_policy
 from demo.train.relative import RelativeActions
 from demo.train.rewards import TaskReward, pearson, task_reward
 
-RL_OFFSET = 40_000_000  # RL training episodes: episode_seed(seed + RL_OFFSET, i) (demo.seeds' table)
 MIN_STD = 0.01  # floor of the observation std (data units: m, rad, 1), so a constant input stays near 0
 ACTIONS = ("ee7", "joint_pos")
 
