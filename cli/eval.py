@@ -30,6 +30,8 @@ def eval_(
     execute: int = typer.Option(None, help="Override: actions executed per chunk query.", show_default="the run's"),
     ensemble: float = typer.Option(None, help="Override: temporal ensembling decay (negative = off).",
                                    show_default="the run's"),
+    candidates: int = typer.Option(None, help="Override: chunks a sampling policy draws per query, the one most "
+                                   "coherent with the chunk before kept (1 = off).", show_default="the run's"),
     video: Path = typer.Option(None, metavar="FILE", help="Write a GIF (or .mp4 where an encoder is installed) of the first episodes.",
                                show_default="no video"),
     video_episodes: int = typer.Option(4, help="Episodes in the video (tiled)."),
@@ -47,7 +49,7 @@ def eval_(
     config = EvalConfig(
         run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},
         robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,
-        execute=execute, ensemble=ensemble, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
+        execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
         record=record,
     )
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation

@@ -34,14 +34,16 @@ def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str,
 
 def _defaults(key: str) -> str:
     """A flag's default per algorithm, from the library's table (demo.train.config)."""
-    from demo.train.config import DAGGER_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
+    from demo.train.config import DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
 
     values = {name: policy_defaults(name)[key] for name in POLICY_DEFAULTS}
     values["dagger"] = {**policy_defaults("bc"), **DAGGER_DEFAULTS}[key]
     text = str(next(iter(values.values()))) if len(set(map(str, values.values()))) == 1 else \
         ", ".join(f"{name} {value}" for name, value in values.items())
+    heads = {head: policy_defaults("bc", options={"head": head})[key] for head in HEAD_DEFAULTS if key in HEAD_DEFAULTS[head]}
     images = {name: policy_defaults(name, images=True)[key] for name in IMAGE_DEFAULTS if key in IMAGE_DEFAULTS[name]}
-    return text + ("; with images: " + ", ".join(f"{name} {value}" for name, value in images.items()) if images else "")
+    return text + "".join(f"; --head {head}: {value}" for head, value in heads.items()) + \
+        ("; with images: " + ", ".join(f"{name} {value}" for name, value in images.items()) if images else "")
 
 
 @app.command()
@@ -64,6 +66,8 @@ def train(
     ensemble: bool = typer.Option(None, "--ensemble/--no-ensemble", help="Temporal ensembling of overlapping chunks (ACT).",
                                   show_default=_defaults("ensemble")),
     ensemble_decay: float = typer.Option(0.01, help="Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01)."),
+    candidates: int = typer.Option(None, help="Chunks a sampling policy draws per query at execution, the one most "
+                                   "coherent with the chunk before kept (1 = off).", show_default=_defaults("candidates")),
     obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys; shorthands: all (every low-dim key), images, proprio.",
                                  show_default="images + proprio with cameras, else low-dim keys except velocities"),
     absolute_actions: bool = typer.Option(False, "--absolute-actions", help="Predict absolute joint targets instead of targets relative to the joint positions."),
@@ -142,7 +146,7 @@ def train(
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
         out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), seed=seed, steps=steps,
         batch_size=batch_size, lr=lr, weight_decay=weight_decay, warmup_steps=warmup, ema=ema, n_obs=n_obs,
-        chunk=chunk, execute=execute, ensemble=ensemble, ensemble_decay=ensemble_decay, obs_keys=_obs_keys(obs_keys),
+        chunk=chunk, execute=execute, ensemble=ensemble, ensemble_decay=ensemble_decay, candidates=candidates, obs_keys=_obs_keys(obs_keys),
         obs_noise=obs_noise, relative_actions=not absolute_actions, train_mask=train_mask, val_mask=val_mask,
         val_fraction=val_fraction, include_failures=include_failures, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, threads=threads,

@@ -13,7 +13,7 @@ from torch import distributions as D
 
 from demo.cli.main import main
 from demo.errors import DemoError
-from demo.train.config import POLICY_DEFAULTS, for_policy
+from demo.train.config import HEAD_DEFAULTS, POLICY_DEFAULTS, for_policy
 from demo.train.heads import GMMHead, make_head
 from demo.train.policy import PolicySpec, build_policy
 
@@ -112,9 +112,14 @@ def test_head_options_are_checked() -> None:
         build_policy("bc", SPEC, {"head": "discrete", "bins": "1"})
     with pytest.raises(DemoError, match="temperature"):
         build_policy("bc", SPEC, {"head": "gmm", "temperature": "-1"})
-    # Every head is executed as BC is (measured: train/config.py)
-    config = for_policy("bc", policy={"head": "gmm"})
-    assert (config.chunk, config.ensemble) == (POLICY_DEFAULTS["bc"]["chunk"], POLICY_DEFAULTS["bc"]["ensemble"])
+    # Every head is chunked and ensembled as BC is; a sampling head adds its own defaults (measured:
+    # train/config.py), and a flag still wins.
+    for head, settings in HEAD_DEFAULTS.items():
+        config = for_policy("bc", policy={"head": head})
+        assert (config.chunk, config.ensemble) == (POLICY_DEFAULTS["bc"]["chunk"], POLICY_DEFAULTS["bc"]["ensemble"])
+        assert all(getattr(config, k) == v for k, v in settings.items())
+    assert for_policy("bc").candidates == 1
+    assert for_policy("bc", policy={"head": "gmm"}, candidates=2).candidates == 2
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +138,7 @@ def test_gmm_run_records_its_head_and_evaluates_after_load(avoid_store: Path, tm
                  "--chunk", "8", "--policy-opt", "hidden=32", "--policy-opt", "components=3"]) == 0
     record = json.loads((run / "run.json").read_text())["policy"]
     assert record["config"]["head"] == "gmm" and record["config"]["components"] == 3
-    assert record["execution"] == {"execute": 1, "ensemble": 0.01}  # BC's execution
+    assert record["execution"] == {"execute": 1, "ensemble": 0.01, "candidates": 8}  # BC's execution, the head's draws
     capsys.readouterr()
     assert main(["eval", str(run), "--episodes", "2", "--json", "-"]) == 0
     result = json.loads(capsys.readouterr().out)

@@ -92,3 +92,34 @@ def test_binary_dims_are_executed_open_or_closed() -> None:
     assert np.allclose(actions[:, 1], np.arange(8) / 10)  # not a binary dim: as predicted
     assert ExecConfig.from_json(execution.to_json()) == execution
     assert ExecConfig.from_json({"execute": 2}).binary == ()  # runs recorded before the option
+
+
+class TwoModes(Policy):
+    """A chunk that is all +0.5 or all -0.5, each row's sign drawn from the generator (a bimodal policy)."""
+
+    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        sign = torch.randint(0, 2, (obs.shape[0], 1, 1), generator=generator).float() * 2 - 1
+        return 0.5 * sign.expand(obs.shape[0], self.spec.horizon, self.spec.action_dim).clone()
+
+
+@pytest.mark.parametrize("candidates", [1, 8])
+def test_coherent_sampling_keeps_the_mode_it_chose(candidates: int) -> None:
+    policy = TwoModes(PolicySpec(obs_dim=1, action_dim=1, n_obs=1, horizon=4), None)
+    identity = MinMaxNormalizer(np.array([-1.0]), np.array([1.0]))
+    actor = PolicyActor(policy, ObsSpec(("obs.x",), (1,)), identity, identity,
+                        ExecConfig(execute=1, ensemble=None, candidates=candidates))
+    signs = np.sign(run(actor, 40)[:, 0])
+    if candidates == 1:
+        assert len(set(signs)) == 2  # a fresh draw each step switches modes
+    else:
+        assert (signs == signs[0]).all()  # every later draw of 8 holds one chunk of the first mode
+    assert actor.queries == 40
+    again = np.sign(run(actor, 40)[:, 0])
+    assert (again == signs).all()  # the same episode seed, the same draws
+
+
+def test_candidates_are_checked_and_recorded() -> None:
+    with pytest.raises(ValueError, match="candidates"):
+        ExecConfig(candidates=0).check(4)
+    assert ExecConfig.from_json(ExecConfig(candidates=8).to_json()).candidates == 8
+    assert "candidates" not in ExecConfig().to_json()  # runs without it read and write as before

@@ -11,7 +11,12 @@ as it was trained:
   made every ``execute`` steps (receding horizon);
 - **temporal ensembling** (ACT, Zhao et al. 2023): with ``ensemble = m`` the action for step ``t``
   is the weighted mean over every stored chunk that covers ``t``, weight ``exp(-m * i)`` with
-  ``i = 0`` for the oldest chunk; ``ensemble = None`` executes the newest chunk only.
+  ``i = 0`` for the oldest chunk; ``ensemble = None`` executes the newest chunk only;
+- **coherent sampling** (the backward coherence of Bidirectional Decoding, Liu et al. 2024): with
+  ``candidates = K > 1`` a query draws K chunks from a sampling policy (one batch) and keeps the one
+  closest to the newest stored chunk over the steps both cover (mean squared distance in the
+  normalised action units). A multimodal policy then stays on the mode it chose, so ensembling
+  averages chunks of one mode instead of two. The first query of an episode keeps the first draw.
 
 Actions leave in the policy's action representation and go through an action adapter
 (:mod:`demo.train.actions`) to become what the environment takes.
@@ -44,24 +49,29 @@ class ExecConfig:
     # open/closed: a regressed 0.07 leaves the fingers a little closed, the measured closedness then
     # reads as "closing" and the policy holds still, waiting for a grasp it never makes.
     binary: tuple[int, ...] = ()
+    candidates: int = 1  # chunks drawn per query, the most coherent kept (module docstring); 1 = off
 
     def check(self, horizon: int) -> None:
         if not 1 <= self.execute <= horizon:
             raise ValueError(f"execute must lie in [1, chunk={horizon}], got {self.execute}")
         if self.ensemble is not None and self.ensemble < 0:
             raise ValueError(f"the ensembling decay must be >= 0, got {self.ensemble}")
+        if self.candidates < 1:
+            raise ValueError(f"candidates must be at least 1, got {self.candidates}")
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {"execute": self.execute, "ensemble": self.ensemble}
         if self.binary:  # recorded only when set: runs without it read as before
             d["binary"] = list(self.binary)
+        if self.candidates > 1:
+            d["candidates"] = self.candidates
         return d
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "ExecConfig":
         e = d.get("ensemble")
         return cls(execute=int(d.get("execute", 1)), ensemble=None if e is None else float(e),
-                   binary=tuple(int(i) for i in d.get("binary") or ()))
+                   binary=tuple(int(i) for i in d.get("binary") or ()), candidates=int(d.get("candidates", 1)))
 
 
 class PolicyActor:
@@ -101,17 +111,26 @@ class PolicyActor:
         self.generator.manual_seed(int(seed) & 0x7FFF_FFFF_FFFF_FFFF)
 
     def _query(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        k = self.execution.candidates
         state = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
-        obs: torch.Tensor | dict[str, torch.Tensor] = torch.from_numpy(state).to(self.device)
+        obs: torch.Tensor | dict[str, torch.Tensor] = torch.from_numpy(np.repeat(state, k, axis=0)).to(self.device)
         if self.images:
-            obs = {STATE: obs, **{k: torch.from_numpy(np.stack(h)[None]).to(self.device) for k, h in self.images.items()}}
+            obs = {STATE: obs, **{key: torch.from_numpy(np.repeat(np.stack(h)[None], k, axis=0)).to(self.device)
+                                  for key, h in self.images.items()}}
         with torch.inference_mode():
-            chunk = self.policy.predict(obs, generator=self.generator)
+            chunks = self.action_norm.unnormalize(self.policy.predict(obs, generator=self.generator).float().cpu().numpy())
         self.queries += 1
-        actions = self.action_norm.unnormalize(chunk[0].float().cpu().numpy())
         if self.relative is not None:
-            actions = actions + self.relative.base_frame(frame, actions.shape[1])
-        return actions
+            chunks = chunks + self.relative.base_frame(frame, chunks.shape[2])
+        chosen = 0
+        if k > 1 and self.chunks:
+            # Backward coherence: the draw closest to the newest stored chunk where both say something,
+            # in normalised action units (the normaliser's per-dimension scale).
+            start, previous = self.chunks[-1]
+            overlap = previous[self.t - start:]  # its actions for steps t .. start + H - 1
+            gap = (chunks[:, : len(overlap)] - overlap) * self.action_norm.scale
+            chosen = int(np.argmin((gap**2).mean(axis=(1, 2))))
+        return chunks[chosen]
 
     def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
         """The policy's action for this frame (its own representation); advances one step."""

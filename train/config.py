@@ -38,16 +38,15 @@ LOOP_DEFAULTS: dict[str, Any] = {
     "chunk": 1,
     "execute": 1,
     "ensemble": False,
+    "candidates": 1,
 }
 
 # Each policy's measured-best settings (held-out eval seeds, >= 100 episodes; README, Results).
 POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
     # pick, 100 scripted demos: 16-step chunks executed with temporal ensembling 99/100, single-step
     # 52-61/100. Chunks are the cure for compounding errors.
-    # The same execution serves every --head (demo.train.heads). avoid (200 paired demos), GMM head
-    # (heaviest component): a query every step with ensembling 69/100 (decay 0.1: 72), 8 or 16 actions
-    # per query without it 5 / 26; sampled components 35 with ensembling, 1-16 without. Executed
-    # open-loop, any regressed chunk drifts here (MSE, 8 per query: 0/100), so the heads keep BC's.
+    # The same chunks and ensembling serve every --head (demo.train.heads): executed open-loop, any
+    # regressed chunk drifts on avoid (MSE, 8 per query: 0/100; GMM, 2 or 4 per query: 0/100).
     "bc": {"chunk": 16, "ensemble": True},
     # Diffusion Policy's horizon 16 / n_obs 2 and AdamW with warm-up + cosine, with a learning rate and
     # EMA for runs of ~10^4 steps on a CPU (published: 1e-4 and EMA to 0.9999 over ~10^6 steps).
@@ -84,6 +83,13 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
     },
 }
 
+# BC's sampling heads over BC's settings. avoid (200 paired demos, seed 0, 5,000 steps), GMM head,
+# ensembled: a fresh component every query 25/100 (the heaviest one: 25), the most coherent of 4 / 8
+# / 32 draws 34 / 43 / 39 (decay 0.1: 35, 0.3: 17): sampled modes averaged by the ensemble collide.
+HEAD_DEFAULTS: dict[str, dict[str, Any]] = {
+    "gmm": {"candidates": 8},
+}
+
 # With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
 # batches; the rest as measured on pick from front + wrist images (README, Results).
 IMAGE_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -118,6 +124,7 @@ class TrainConfig:
     chunk: int | None = None  # actions predicted per query (action chunking when > 1)
     execute: int | None = None  # actions executed per query (receding horizon)
     ensemble: bool | None = None  # temporal ensembling of overlapping chunks at execution (ACT)
+    candidates: int | None = None  # chunks a sampling policy draws per query, the most coherent kept (demo.train.actor)
     # ---- the same for every policy
     ensemble_decay: float = 0.01  # ensembling weight exp(-m i) of the i-th newest prediction's age (ACT: m = 0.01)
     min_lr_ratio: float = 0.01  # cosine decays to this fraction of lr
@@ -158,7 +165,8 @@ class TrainConfig:
         if unresolved:
             raise ValueError(f"TrainConfig is not resolved ({', '.join(unresolved)}); call .resolved() first")
         positive = {"steps": self.steps, "batch_size": self.batch_size, "n_obs": self.n_obs, "chunk": self.chunk,
-                    "execute": self.execute, "log_every": self.log_every, "val_every": self.val_every}
+                    "execute": self.execute, "candidates": self.candidates, "log_every": self.log_every,
+                    "val_every": self.val_every}
         for name, value in positive.items():
             if value < 1:
                 raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
@@ -184,10 +192,11 @@ class TrainConfig:
         return d
 
 
-def policy_defaults(name: str, images: bool = False) -> dict[str, Any]:
+def policy_defaults(name: str, images: bool = False, options: dict[str, Any] | None = None) -> dict[str, Any]:
     """The training-loop settings policy ``name`` is trained with unless told otherwise (``images``:
-    on camera images)."""
-    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
+    on camera images; ``options``: the policy's options, BC's ``head`` choosing :data:`HEAD_DEFAULTS`)."""
+    head = HEAD_DEFAULTS.get(str((options or {}).get("head")), {}) if name == "bc" else {}
+    return {**LOOP_DEFAULTS, **POLICY_DEFAULTS.get(name, {}), **head, **(IMAGE_DEFAULTS.get(name, {}) if images else {})}
 
 
 def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] = ()) -> bool:
@@ -210,8 +219,8 @@ def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] =
 
 def for_policy(name: str, **given: Any) -> TrainConfig:
     """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
-    then the policy's defaults (:data:`IMAGE_DEFAULTS` over :data:`POLICY_DEFAULTS` when the data has
-    cameras the policy reads), then :data:`LOOP_DEFAULTS`."""
+    then the policy's defaults (:data:`IMAGE_DEFAULTS` when the data has cameras the policy reads, over
+    BC's :data:`HEAD_DEFAULTS`, over :data:`POLICY_DEFAULTS`), then :data:`LOOP_DEFAULTS`."""
     from demo.train.policy import policy_class
 
     policy_class(name)  # an unknown policy fails here, naming the known ones
@@ -225,7 +234,7 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     # again what the CLI resolved) opens nothing.
     image_tuned = {k for table in IMAGE_DEFAULTS.values() for k in table}
     images = not image_tuned <= set(given) and reads_images(given.get("data"), tuple(given.get("obs_keys") or ()))
-    values = {**policy_defaults(name, images), **given, "algo": name}
+    values = {**policy_defaults(name, images, given.get("policy")), **given, "algo": name}
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])
     return TrainConfig(**values)

@@ -39,6 +39,7 @@ import math
 import time
 from contextlib import ExitStack
 from collections.abc import Iterator, Sequence
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -281,6 +282,7 @@ class EvalConfig:
     address: str | None = None  # a Ray cluster (None: a local Ray)
     execute: int | None = None  # override the run's chunk execution
     ensemble: float | None = None  # override the ensembling decay (< 0 turns it off)
+    candidates: int | None = None  # override the chunks drawn per query (coherent sampling, demo.train.actor)
     video: str | None = None  # .gif (or .mp4 where an encoder is installed)
     video_episodes: int = 4
     video_size: int = 128
@@ -289,12 +291,15 @@ class EvalConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None) -> ExecConfig:
-    execution = ExecConfig(bundle.execution.execute, bundle.execution.ensemble, bundle.execution.binary)
+def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None,
+                  candidates: int | None = None) -> ExecConfig:
+    execution = dataclasses.replace(bundle.execution)
     if execute is not None:
         execution.execute = execute
     if ensemble is not None:
         execution.ensemble = None if ensemble < 0 else ensemble
+    if candidates is not None:
+        execution.candidates = candidates
     try:
         execution.check(bundle.policy.spec.horizon)
     except ValueError as exc:
@@ -317,7 +322,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     executor = executor.on_device(device)
     bundle = load_bundle(run, device)
     task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
-    execution = execution_for(bundle, config.execute, config.ensemble)
+    execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
     seeds = eval_seeds(config.seed, config.episodes)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
     jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]

@@ -64,7 +64,7 @@ RESUME_KEYS = ("algo", "policy", "seed", "batch_size", "lr", "n_obs", "chunk", "
 def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
     """How the trained policy's chunks and gripper are executed (recorded in the run)."""
     binary = tuple(i for i, name in enumerate(action.names) if name == "gripper") if config.binary_gripper else ()
-    return ExecConfig(config.execute, config.ensemble_decay if config.ensemble else None, binary)
+    return ExecConfig(config.execute, config.ensemble_decay if config.ensemble else None, binary, config.candidates)
 
 
 class Monitor:
