@@ -239,3 +239,37 @@ def bench_policies(
                                          ["policy", "success", "95% CI", "both sides", "training s (+teacher)", "ms/query"],
                                          format_rows(r)))
     write_json(r, json_out)
+
+
+@bench_app.command("peer-gail")
+def bench_peer_gail(
+    data: str = typer.Option(..., "--data", metavar="STORE", help="The demonstrations: a store of --task (never "
+                             "modified).", show_default=False),
+    json_out: str = json_option(default="-"),
+    task: str = typer.Option("reach", help="Task: its Gymnasium env demo/<Task>-v0."),
+    demos: int = typer.Option(None, help="Use the first N successful demonstrations.", show_default="all"),
+    steps: int = typer.Option(480_000, help="Training environment steps, an upper bound (whole rounds of --envs x "
+                                            "--rollout)."),
+    seed: int = typer.Option(0, help="Seed of PPO, the discriminator, the training episodes (RL seed stream) and the "
+                                     "evaluation episodes (demo eval --seed's)."),
+    eval_episodes: int = typer.Option(100, "--eval-episodes", help="Evaluation episodes: demo eval --seed's, disjoint "
+                                                                   "from the data."),
+    envs: int = typer.Option(8, help="Environments of the vector env (one process, stepped in turn)."),
+    rollout: int = typer.Option(2048, help="PPO n_steps: control steps per environment per GAIL round."),
+    demo_batch_size: int = typer.Option(1024, "--demo-batch-size", help="Expert (and as many policy) samples per "
+                                                                        "discriminator update."),
+    threads: int = typer.Option(1, help="Torch threads."),
+) -> None:
+    """The imitation library's GAIL (stable-baselines3 PPO) on demo/<Task>-v0: success on demo eval's episodes, steps,
+    time. Runs where imitation is installed (its own venv: README)."""
+    from demo.bench.peer_gail import PeerGailConfig, run, summary_rows
+    from demo.cli.output import kv_table, report_console, write_json
+    from demo.cli.progress import bars
+
+    config = PeerGailConfig(data=data, task=task, demos=demos, steps=steps, seed=seed, eval_episodes=eval_episodes,
+                            envs=envs, rollout=rollout, demo_batch_size=demo_batch_size, threads=threads)
+    with bars() as progress:
+        r = run(config, progress=progress)
+    report_console(json_out).print(kv_table(f"bench peer-gail ({task}, imitation {r['versions']['imitation']}, "
+                                            f"seed {seed})", summary_rows(r)))
+    write_json(r, json_out)

@@ -97,6 +97,8 @@ SKIPS = {
     "bench policies": "collects, trains and evaluates one policy per class (and a distillation); "
                       "test_bench_policies.py runs it in miniature with --json FILE and reads it",
     "irl train": "trains a PPO inner loop per algorithm; test_irl.py runs each algorithm in miniature with --json FILE",
+    "bench peer-gail": "needs the imitation library, installed in its own venv only (README); test_peer_gail.py runs it "
+                       "in miniature there with --json FILE",
 }
 
 

@@ -199,7 +199,7 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
         episode = rollout(env, seed, act, reset=False, record=record or keep, max_steps=max_steps)
     except FloatingPointError as exc:
         return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
-    if _diverged(env):
+    if diverged(env):
         return EpisodeOutcome(index, seed, False, episode.length, None, "error", "simulation became unstable")
     if episode.success:
         outcome = "success"
@@ -214,7 +214,7 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
                           episode.data if keep else None)
 
 
-def _diverged(env: Any) -> bool:
+def diverged(env: Any) -> bool:
     """MuJoCo resets the state itself on a bad acceleration and only counts a warning."""
     import mujoco
 
