@@ -5,9 +5,9 @@ The peer runs in its own virtual environment, never in the project's: ``imitatio
 ``gymnasium~=0.29`` and ``stable-baselines3~=2.2.1`` where the project requires ``gymnasium>=1``
 (README, Reinforcement and inverse RL)::
 
-    python3 -m venv /work/venv-imitation
-    /work/venv-imitation/bin/pip install -e /work/main            # demo and its dependencies
-    /work/venv-imitation/bin/pip install imitation==1.0.1          # downgrades gymnasium to 0.29.1
+    python3 -m venv ../venv-imitation
+    ../venv-imitation/bin/pip install -e .                   # demo and its dependencies (from the repository)
+    ../venv-imitation/bin/pip install imitation==1.0.1       # downgrades gymnasium to 0.29.1
 
 (pip reports that demo-toolkit wants gymnasium>=1.0; ``demo.gym`` runs on 0.29.1, whose API it uses.)
 This module imports ``imitation`` and ``stable_baselines3`` only inside :func:`run`; without them it
@@ -77,8 +77,8 @@ from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, RL_OFFSET, episode_seed, eval_seeds
 
-INSTALL = ("python3 -m venv /work/venv-imitation && /work/venv-imitation/bin/pip install -e /work/main && "
-           "/work/venv-imitation/bin/pip install imitation==1.0.1, then run /work/venv-imitation/bin/demo "
+INSTALL = ("in the repository: python3 -m venv ../venv-imitation && ../venv-imitation/bin/pip install -e . && "
+           "../venv-imitation/bin/pip install imitation==1.0.1, then run ../venv-imitation/bin/demo "
            "(README: the peer GAIL)")
 HP_SOURCE = ("imitation's GAIL tutorial (docs/tutorials/3_train_gail.ipynb, seals/CartPole-v0, 8 envs): "
              "PPO(MlpPolicy, batch_size=64, ent_coef=0.0, learning_rate=4e-4, gamma=0.95, n_epochs=5; n_steps "
