@@ -120,6 +120,8 @@ def test_head_options_are_checked() -> None:
         assert all(getattr(config, k) == v for k, v in settings.items())
     assert for_policy("bc").candidates == 1
     assert for_policy("bc", policy={"head": "gmm"}, candidates=2).candidates == 2
+    assert (for_policy("bc", policy={"head": "discrete"}).chunk, for_policy("bc", policy={"head": "discrete"}).ensemble) == \
+        (POLICY_DEFAULTS["bc"]["chunk"], POLICY_DEFAULTS["bc"]["ensemble"])
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +140,7 @@ def test_gmm_run_records_its_head_and_evaluates_after_load(avoid_store: Path, tm
                  "--chunk", "8", "--policy-opt", "hidden=32", "--policy-opt", "components=3"]) == 0
     record = json.loads((run / "run.json").read_text())["policy"]
     assert record["config"]["head"] == "gmm" and record["config"]["components"] == 3
-    assert record["execution"] == {"execute": 1, "ensemble": 0.01, "candidates": 8}  # BC's execution, the head's draws
+    assert record["execution"] == {"execute": 1, "ensemble": 0.01}  # BC's execution
     capsys.readouterr()
     assert main(["eval", str(run), "--episodes", "2", "--json", "-"]) == 0
     result = json.loads(capsys.readouterr().out)
