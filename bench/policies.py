@@ -14,7 +14,8 @@ On one task (``avoid``, bimodal, or ``pick``):
    episodes that differ only in the policy's sampling seed; the share of starts from which the
    policy passes the obstacle on both sides (``demo bench multimodal``'s measure);
 5. **latency**: milliseconds per query of each policy at batch 1 on one thread, timed in turn
-   (:func:`demo.bench.infer.time_interleaved`), and per control step (a query every ``execute`` steps).
+   (:func:`demo.bench.infer.time_interleaved`, in blocks of calls: each policy's weights warm, as when
+   it is deployed alone), and per control step (a query every ``execute`` steps).
 
 Writes one JSON (every number and the configuration) and one PNG (bars with 95% intervals). Each
 policy's run directory, evaluation and modes are kept under ``out``; a rerun with the same ``out``
@@ -192,7 +193,7 @@ def latencies(runs: dict[str, Path], seconds: float) -> dict[str, dict[str, floa
     """Milliseconds per query (batch 1, one thread) of each run's policy, timed in turn, and per control step."""
     import torch
 
-    from demo.bench.infer import time_interleaved
+    from demo.bench.infer import WARM_BLOCK, time_interleaved
     from demo.train.checkpoint import load_bundle
 
     class Query:  # each policy on an observation of its own shape (time_interleaved passes one to all)
@@ -208,7 +209,7 @@ def latencies(runs: dict[str, Path], seconds: float) -> dict[str, dict[str, floa
     old = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        timed = time_interleaved(queries, torch.zeros(1), seconds) if queries else {}
+        timed = time_interleaved(queries, torch.zeros(1), seconds, block=WARM_BLOCK) if queries else {}
     finally:
         torch.set_num_threads(old)
     return {name: {"ms_per_query": t["ms_median"], "ms_per_control_step": t["ms_median"] / queries[name].bundle.execution.execute,
