@@ -223,7 +223,8 @@ def run(
         meets = one_step_speedup >= TARGET_ONE_STEP_SPEEDUP
     points_below = None
     if rollouts:
-        points_below = 100 * (rollouts["reference"]["success_rate"] - rollouts["figure"]["success_rate"])
+        # rounded: 100 * (0.92 - 0.87) is 5.000000000000004 in floating point, and 5 points is within 5
+        points_below = round(100 * (rollouts["reference"]["success_rate"] - rollouts["figure"]["success_rate"]), 6)
         meets = meets and points_below <= (TARGET_DISTIL_POINTS if distilled is not None else TARGET_SUCCESS_POINTS)
     return {
         "benchmark": "infer",
