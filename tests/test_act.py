@@ -92,6 +92,14 @@ def test_training_lowers_the_loss_and_inference_is_deterministic() -> None:
     b = policy.predict(obs, torch.Generator().manual_seed(1))
     assert torch.equal(b, policy.predict(obs, torch.Generator().manual_seed(1)))
     assert not torch.equal(b, policy.predict(obs, torch.Generator().manual_seed(2)))
+    # sample: another z at the next query of the same rollout; commit: the same z all episode
+    g = torch.Generator().manual_seed(1)
+    assert torch.equal(policy.predict(obs, g), b) and not torch.equal(policy.predict(obs, g), b)
+    policy.config.latent = "commit"
+    g = torch.Generator().manual_seed(1)
+    c = policy.predict(obs, g)
+    assert torch.equal(c, b) and torch.equal(policy.predict(obs, g), c)
+    assert not torch.equal(c, policy.predict(obs, torch.Generator().manual_seed(2)))
 
 
 @pytest.fixture(scope="module")

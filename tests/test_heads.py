@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from torch import distributions as D
@@ -73,6 +74,23 @@ def test_discrete_loss_is_cross_entropy_of_the_nearest_bin() -> None:
     assert head.loss(logits, action, None).item() < 1e-6
     assert head.loss(torch.zeros(1, 5), action, None).item() == pytest.approx(math.log(5), rel=1e-6)
     assert head.sample(logits).item() == 0.5
+
+
+def test_discrete_bins_span_each_steps_own_range() -> None:
+    """Fitted limits per step and dimension: a step whose targets span 0.02 gets its own 5 bins
+    (not one bin of [-1, 1]'s), its targets land in distinct bins and sampling returns its centres."""
+    head = make_head("discrete", 2, 1, bins=5)
+    head.fit(np.array([[0.0], [-1.0]]), np.array([[0.02], [1.0]]))
+    assert torch.allclose(head.centres()[0, 0], torch.tensor([0.0, 0.005, 0.01, 0.015, 0.02]))
+    action = torch.tensor([[[0.011], [0.3]]])  # bins 2 (0.01) and 3 (0.5)
+    logits = torch.full((1, 2, 1, 5), -20.0)
+    logits[0, 0, 0, 2] = logits[0, 1, 0, 3] = 20.0
+    assert head.loss(logits.flatten(1), action, None).item() < 1e-6
+    assert torch.allclose(head.sample(logits.flatten(1)), torch.tensor([[[0.01], [0.5]]]))
+    head.fit(np.zeros((2, 1)), np.zeros((2, 1)))  # a constant dimension: a narrow range, not a division by 0
+    assert torch.isfinite(head.loss(logits.flatten(1), action, None))
+    with pytest.raises(ValueError, match="limits must be"):
+        head.fit(np.zeros((3, 1)), np.zeros((3, 1)))
 
 
 @pytest.mark.parametrize("head", ["mse", "gmm", "discrete"])
@@ -148,3 +166,15 @@ def test_gmm_run_records_its_head_and_evaluates_after_load(avoid_store: Path, tm
     # --head belongs to the MLP: one line for another algorithm
     assert main(["train", str(avoid_store), "--out", str(tmp_path / "x"), "--algo", "diffusion", "--head", "gmm"]) == 1
     assert "--head" in capsys.readouterr().err
+
+
+def test_discrete_run_fits_its_bins_to_the_data_and_keeps_them(avoid_store: Path, tmp_path: Path) -> None:
+    """Relative joint targets: step 0 spans less than the last step; the run's checkpoint keeps the ranges."""
+    from demo.train.checkpoint import load_bundle
+
+    run = tmp_path / "discrete"
+    assert main(["train", str(avoid_store), "--out", str(run), "--head", "discrete", "--steps", "5", "--batch-size", "16",
+                 "--chunk", "8", "--policy-opt", "hidden=16", "--policy-opt", "bins=8"]) == 0
+    head = load_bundle(run).policy.head
+    span = (head.high - head.low)[:, :7]  # the arm's joints (relative); the gripper is absolute
+    assert (span[0] < 0.5 * span[-1]).all() and (head.low >= -1.0 - 1e-5).all() and (head.high <= 1.0 + 1e-5).all()

@@ -21,7 +21,9 @@ Reads top to bottom:
    the episode end, plus ``kl_weight`` times the KL divergence of ``N(mu, sigma)`` from ``N(0, I)``
    (summed over the latent dimensions, mean over the batch: ACT's ``kl_divergence``; weight 10).
 4. :meth:`ACTPolicy.predict`: ``z = 0``, the prior's mean (the paper), so a query is deterministic;
-   ``latent=sample`` draws ``z`` from the prior with the rollout's generator instead.
+   ``latent=sample`` draws ``z`` from the prior with the rollout's generator at every query instead,
+   ``latent=commit`` once per episode (the generator's next numbers, read without consuming them),
+   so that where ``z`` carries a mode the whole episode keeps it.
 
 Execution is the shared executor (:mod:`demo.train.actor`): a query every step and temporal
 ensembling of every chunk covering the step, weights ``exp(-m i)`` with ``i = 0`` the oldest (ACT's
@@ -35,10 +37,10 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from demo.train.heads import masked_mean
+from demo.train.heads import masked_mean, peek
 from demo.train.policy import Policy, PolicySpec, register_policy
 
-LATENTS = ("zero", "sample")
+LATENTS = ("zero", "sample", "commit")
 
 
 # ================================================================================== 1. config
@@ -57,7 +59,9 @@ class ACTConfig:
     dropout: float = 0.1  # published: 0.1
     latent_dim: int = 32  # style variable z (published: 32)
     kl_weight: float = 10.0  # beta of the KL term (published: 10)
-    latent: str = "zero"  # z at inference: zero (the prior's mean, published) | sample (from the prior, seeded)
+    # z at inference: zero (the prior's mean, published) | sample (from the prior, seeded, per query) |
+    # commit (one draw from the prior per episode: every query of a rollout uses the same z)
+    latent: str = "zero"
 
     def __post_init__(self) -> None:
         if min(self.d_model, self.heads, self.encoder_layers, self.decoder_layers, self.vae_layers,
@@ -141,6 +145,8 @@ class ACTPolicy(Policy):
         shape = (obs.shape[0], self.config.latent_dim)
         if self.config.latent == "sample":
             z = torch.randn(shape, generator=generator, device=obs.device, dtype=obs.dtype)
+        elif self.config.latent == "commit":
+            z = peek(generator, lambda: torch.randn(shape, generator=generator, device=obs.device, dtype=obs.dtype))
         else:
             z = torch.zeros(shape, device=obs.device, dtype=obs.dtype)
         return self.decode(obs, z)

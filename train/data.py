@@ -284,15 +284,26 @@ def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:
 
 
 def _fit_action_normalizer(data: TrainingData) -> MinMaxNormalizer:
-    """Min-max over every action of every training window (chunk steps included), in blocks."""
+    """Min-max over every action of every training window (chunk steps included)."""
+    lo, hi = chunk_action_limits(data, normalized=False)
+    return MinMaxNormalizer.from_limits(lo.min(axis=0), hi.max(axis=0))
+
+
+def chunk_action_limits(data: TrainingData, normalized: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Per chunk step and action dimension, ``[H, A]`` min and max over the training windows' actions
+    (relative to their query frame if so; normalised by ``data.action_norm`` unless ``normalized`` is
+    False), read in blocks. Relative targets spread with the step: the first is a step's motion,
+    the last a chunk's."""
     windows = Windows(data, data.train_episodes, normalize=False)
-    lo = np.full(data.action.shape[1], np.inf, np.float32)
-    hi = np.full(data.action.shape[1], -np.inf, np.float32)
+    shape = (data.spec.horizon, data.action.shape[1])
+    lo, hi = np.full(shape, np.inf, np.float32), np.full(shape, -np.inf, np.float32)
     idx = windows.sampler.indices
     for i in range(0, len(idx), 65536):
-        block = windows.actions(idx[i : i + 65536]).reshape(-1, data.action.shape[1])
+        block = windows.actions(idx[i : i + 65536])
         lo, hi = np.minimum(lo, block.min(axis=0)), np.maximum(hi, block.max(axis=0))
-    return MinMaxNormalizer.from_limits(lo, hi)
+    if normalized:  # an increasing affine map per dimension keeps min and max
+        lo, hi = data.action_norm.normalize(lo), data.action_norm.normalize(hi)
+    return lo, hi
 
 
 class Windows:

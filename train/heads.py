@@ -1,6 +1,6 @@
 """Output heads: a distribution over a normalised action chunk, read from a network's flat output.
 
-A head owns no weights: the network in front of it (BC's MLP, :mod:`demo.train.mlp`) ends in one
+A head owns no weights (the discrete head keeps its bins' ranges as buffers): the network in front of it (BC's MLP, :mod:`demo.train.mlp`) ends in one
 linear layer of :attr:`ChunkHead.width` outputs, and the head says what they mean, how to score a
 demonstrated chunk under them (:meth:`ChunkHead.loss`) and how to act on them
 (:meth:`ChunkHead.sample`). Chunks are ``[B, H, A]``: ``H`` steps of ``A`` action dimensions,
@@ -15,11 +15,14 @@ min-max normalised to [-1, 1] by the shared pipeline.
   Trained by negative log-likelihood. Acting draws a component from the mixture weights (sharpened
   by ``temperature``: ``w^(1/T)``; 0 = the heaviest) with the caller's generator and returns its mean
   (robomimic's ``low_noise_eval``), or with ``low_noise`` off a full sample of that component.
-- ``discrete``: each step's each dimension falls into one of ``bins`` equal bins over [-1, 1];
+- ``discrete``: each step's each dimension falls into one of ``bins`` equal bins over that step's
+  and dimension's own range in the training data (:meth:`DiscreteHead.fit`; [-1, 1] until fitted);
   per-bin logits trained by cross-entropy on the target's nearest bin centre (quantisation error
-  at most 1 / (bins - 1) of the normalised range). Acting draws each bin from its softmax at
-  ``temperature`` (0 = the likeliest bin). The bins of different steps and dimensions are drawn
-  independently.
+  at most 1 / (bins - 1) of the range). One range for all steps would not do: actions relative to
+  the query frame span a step's motion at step 0 and a chunk's at step 15, and 64 bins over the
+  latter put every first step in the same bin (measured on avoid: 0/100). Acting draws each bin
+  from its softmax at ``temperature`` (0 = the likeliest bin). The bins of different steps and
+  dimensions are drawn independently.
 
 Chunk steps past the episode end (``keep`` False) are left out of every loss: for the GMM this is
 the exact marginal of the kept dimensions (a diagonal Gaussian's marginal drops the others).
@@ -28,11 +31,15 @@ the exact marginal of the kept dimensions (a diagonal Gaussian's marginal drops 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
+import numpy as np
 import torch
+from torch import nn
 from torch.nn import functional as F
 
 HEADS = ("mse", "gmm", "discrete")
+MIN_BIN_SPAN = 1e-3  # narrowest range of a discrete head's bins (normalised units): a constant dimension
 
 
 def draw(logits: torch.Tensor, temperature: float, generator: torch.Generator | None, commit: bool = False) -> torch.Tensor:
@@ -46,11 +53,18 @@ def draw(logits: torch.Tensor, temperature: float, generator: torch.Generator | 
     probs = (logits.float() / temperature).softmax(dim=-1)
     if not commit:
         return torch.multinomial(probs, 1, generator=generator)[:, 0]
+    u = peek(generator, lambda: torch.rand(len(probs), 1, generator=generator, device=probs.device))
+    return (probs.cumsum(dim=-1) < u).sum(dim=-1).clamp(max=probs.shape[-1] - 1)
+
+
+def peek(generator: torch.Generator | None, sample: Callable[[], torch.Tensor]) -> torch.Tensor:
+    """``sample()``'s draw from ``generator``, which is left as it was: the next call sees the same numbers
+    (a rollout's generator is drawn from by its policy alone, so every query of an episode does)."""
     state = generator.get_state() if generator is not None else None
-    u = torch.rand(len(probs), 1, generator=generator, device=probs.device)
+    out = sample()
     if generator is not None:
         generator.set_state(state)
-    return (probs.cumsum(dim=-1) < u).sum(dim=-1).clamp(max=probs.shape[-1] - 1)
+    return out
 
 
 def masked_mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
@@ -64,11 +78,17 @@ def masked_mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor
     return (values * mask).sum() / (mask.sum() * per_step)
 
 
-class ChunkHead:
-    """Base class: a distribution over ``[B, H, A]`` chunks parameterised by ``[B, width]`` outputs."""
+class ChunkHead(nn.Module):
+    """Base class: a distribution over ``[B, H, A]`` chunks parameterised by ``[B, width]`` outputs.
+
+    A module so that what a head keeps (the discrete bins' ranges) moves and saves with the policy."""
 
     def __init__(self, horizon: int, action_dim: int):
+        super().__init__()
         self.horizon, self.action_dim = horizon, action_dim
+
+    def fit(self, low: np.ndarray, high: np.ndarray) -> None:
+        """Take the training actions' ``[H, A]`` per-step limits (normalised) before training; most heads ignore them."""
 
     @property
     def width(self) -> int:
@@ -148,11 +168,21 @@ class GMMHead(ChunkHead):
 
 
 class DiscreteHead(ChunkHead):
-    """``bins`` logits per chunk step and action dimension over equal bins of [-1, 1]."""
+    """``bins`` logits per chunk step and action dimension over equal bins of that step's and dimension's range."""
 
     def __init__(self, horizon: int, action_dim: int, bins: int, temperature: float = 1.0):
         super().__init__(horizon, action_dim)
         self.bins, self.temperature = bins, temperature
+        self.register_buffer("low", torch.full((horizon, action_dim), -1.0))
+        self.register_buffer("high", torch.full((horizon, action_dim), 1.0))
+
+    def fit(self, low: np.ndarray, high: np.ndarray) -> None:
+        """Bins over ``[low, high]`` per step and dimension (``[H, A]``, normalised units)."""
+        low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+        if low.shape != tuple(self.low.shape) or high.shape != low.shape:
+            raise ValueError(f"limits must be {tuple(self.low.shape)}, got {low.shape} and {high.shape}")
+        self.low.copy_(torch.from_numpy(low))
+        self.high.copy_(torch.from_numpy(np.maximum(high, low + MIN_BIN_SPAN)))
 
     @property
     def width(self) -> int:
@@ -161,19 +191,23 @@ class DiscreteHead(ChunkHead):
     def logits(self, out: torch.Tensor) -> torch.Tensor:
         return out.float().reshape(out.shape[0], self.horizon, self.action_dim, self.bins)
 
-    def centres(self, like: torch.Tensor) -> torch.Tensor:
-        return torch.linspace(-1.0, 1.0, self.bins, device=like.device)
+    def centres(self) -> torch.Tensor:
+        """``[H, A, bins]`` bin centres, normalised units."""
+        u = torch.linspace(0.0, 1.0, self.bins, device=self.low.device)
+        return self.low[..., None] + (self.high - self.low)[..., None] * u
 
     def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
         """Cross-entropy (nats) of the target's nearest bin, mean over kept steps and dimensions."""
-        target = ((action.float().clamp(-1.0, 1.0) + 1.0) * 0.5 * (self.bins - 1)).round().long()
+        u = (action.float() - self.low) / (self.high - self.low)
+        target = (u.clamp(0.0, 1.0) * (self.bins - 1)).round().long()
         ce = F.cross_entropy(self.logits(out).flatten(0, 2), target.flatten(), reduction="none")
         return masked_mean(ce.reshape(action.shape), keep)
 
     def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         logits = self.logits(out)
         index = draw(logits.flatten(0, 2), self.temperature, generator).reshape(logits.shape[:-1])
-        return self.centres(logits)[index].to(out.dtype)
+        chunk = self.centres().expand(len(index), -1, -1, -1).gather(-1, index[..., None])[..., 0]
+        return chunk.to(out.dtype)
 
 
 def make_head(name: str, horizon: int, action_dim: int, *, components: int = 5, min_std: float = 0.01,

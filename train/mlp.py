@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -34,7 +35,7 @@ class MLPConfig:
     components: int = 5  # gmm: mixture components over the whole chunk (robomimic: 5)
     min_std: float = 0.01  # gmm: floor of each component's std, normalised units (robomimic: 0.01)
     low_noise: bool = True  # gmm: act on the drawn component's mean (robomimic's low_noise_eval); false: a full sample
-    bins: int = 64  # discrete: equal bins over the normalised [-1, 1] per step and dimension
+    bins: int = 64  # discrete: equal bins over each chunk step's and dimension's range in the data
     temperature: float = 1.0  # gmm, discrete: sampling temperature of the component / bin; 0 = the likeliest
     commit: bool = False  # gmm: one uniform per episode picks the component at every query (demo.train.heads.draw)
 
@@ -85,6 +86,9 @@ class MLPPolicy(Policy):
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         keep = None if self.config.loss_on_pad or self.spec.horizon == 1 else ~action_pad
         return self.head.loss(self(obs), action, keep)
+
+    def fit_actions(self, low: np.ndarray, high: np.ndarray) -> None:
+        self.head.fit(low, high)
 
     @torch.no_grad()
     def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:

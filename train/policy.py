@@ -27,6 +27,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -75,6 +76,10 @@ class Policy(nn.Module):
         the last action); a policy may ignore them, as ACT does.
         """
         raise NotImplementedError
+
+    def fit_actions(self, low: np.ndarray, high: np.ndarray) -> None:
+        """Before training: the normalised training actions' min and max per chunk step and dimension
+        (``[H, A]``), for a policy whose outputs depend on them (BC's discrete head); default: ignored."""
 
     def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Normalised action chunk ``[B, H, A]`` for normalised ``obs [B, n_obs, D]``, in eval mode.

@@ -49,7 +49,7 @@ from demo.train import checkpoint as ckpt
 from demo.train import distributed
 from demo.train.actor import ExecConfig
 from demo.train.config import TrainConfig
-from demo.train.data import TrainingData
+from demo.train.data import TrainingData, chunk_action_limits
 from demo.train.device import resolve_device
 from demo.train.optim import Learner, make_learner, train_step, validation_loss
 from demo.train.policy import build_policy, policy_config
@@ -171,6 +171,7 @@ class TrainingRun:
             torch.manual_seed(seed)
         policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy),
                               self.config.encoder)
+        policy.fit_actions(*chunk_action_limits(data))
         return make_learner(policy, self.config, step, phase_steps, self.device)
 
     def begin(self, store: EpisodeStore | Sequence[EpisodeStore], data: TrainingData, learner: Learner,
