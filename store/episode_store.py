@@ -273,7 +273,8 @@ class EpisodeStore:
         # one never published stays staged, and the next writer of its path removes it. An
         # object-storage lock needs the network: left during shutdown (then stale: the next writer
         # on this machine takes it over), deleted otherwise.
-        if isinstance(self._lock, RemoteWriterLock) and sys.is_finalizing():
+        lock = getattr(self, "_lock", None)  # None: __init__ failed before it held one
+        if lock is None or isinstance(lock, RemoteWriterLock) and sys.is_finalizing():
             return
         try:
             self._release_lock()

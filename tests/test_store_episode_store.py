@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import signal
@@ -269,3 +270,16 @@ def test_bad_input_on_append(tmp_path: Path) -> None:
         assert store.num_episodes == 1
     store = EpisodeStore.open(tmp_path / "s.zarr")
     assert store.num_episodes == 1 and store.verify() == []
+
+
+def test_a_store_that_failed_to_construct_is_collected_quietly() -> None:
+    """__del__ of an object whose __init__ raised before it held a lock says nothing."""
+    seen: list[object] = []
+    previous, sys.unraisablehook = sys.unraisablehook, seen.append
+    try:
+        with pytest.raises(TypeError):
+            EpisodeStore()  # type: ignore[call-arg]
+        gc.collect()
+    finally:
+        sys.unraisablehook = previous
+    assert seen == []
