@@ -84,6 +84,7 @@ def test_training_lowers_the_loss_and_inference_is_deterministic() -> None:
     assert sum(losses[-10:]) < 0.5 * sum(losses[:10])
     policy.eval()
     # z = 0 (the paper): no randomness, whatever the generator
+    policy.config.latent = "zero"
     a = policy.predict(obs, torch.Generator().manual_seed(1))
     assert torch.equal(a, policy.predict(obs, torch.Generator().manual_seed(2)))
     assert (a - action).abs().mean() < 0.5 * (action - action.mean()).abs().mean()  # it learned the chunks
@@ -100,6 +101,34 @@ def test_training_lowers_the_loss_and_inference_is_deterministic() -> None:
     c = policy.predict(obs, g)
     assert torch.equal(c, b) and torch.equal(policy.predict(obs, g), c)
     assert not torch.equal(c, policy.predict(obs, torch.Generator().manual_seed(2)))
+
+
+@pytest.mark.parametrize("kl_weight", [0.01, 10.0])
+def test_a_light_kl_lets_the_latent_carry_the_mode(kl_weight: float) -> None:
+    """A bimodal target: from one observation the chunk is all +0.6 or all -0.6, half each. With the
+    default KL weight the latent carries the side and committed draws land on both modes, each whole;
+    with the paper's 10 it does not, and the draws land between them."""
+    torch.manual_seed(0)
+    policy = build_policy("act", SPEC, {**TINY, "kl_weight": kl_weight})
+    obs = torch.zeros(128, 2, 5)
+    side = torch.where(torch.arange(128) % 2 == 0, 0.6, -0.6)
+    action = side[:, None, None].expand(128, 6, 3).contiguous()
+    pad = torch.zeros(128, 6, dtype=torch.bool)
+    opt = torch.optim.AdamW(policy.parameters(), lr=1e-3)
+    for _ in range(300):
+        loss = policy.train().loss(obs, action, pad)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    policy.eval()
+    draws = torch.cat([policy.predict(obs[:1], torch.Generator().manual_seed(s)) for s in range(40)])  # [40, 6, 3]
+    on_a_mode = ((draws.abs() - 0.6).abs() < 0.15).all(dim=(1, 2))
+    positive = (draws > 0).all(dim=(1, 2))
+    if kl_weight == 0.01:
+        assert on_a_mode.float().mean() > 0.8
+        assert 0.2 < positive[on_a_mode].float().mean() < 0.8
+    else:
+        assert on_a_mode.float().mean() < 0.2  # between the modes (L1's median), whatever z
 
 
 @pytest.fixture(scope="module")

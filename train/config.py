@@ -85,8 +85,9 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
 
 # BC's sampling heads over BC's settings: none measured better than BC's own. avoid (200 paired demos),
 # GMM head, 100 episodes per run: the training seed decides more than any setting (15,000 steps:
-# 81, 6 and 15/100 for seeds 0-2; seed 0 at 5,000 / 30,000 steps: 43 / 14); coherent sampling of 8
-# draws against 1, over 7 runs: +18, +8, +9, +1, -2, -5, -5 points (mean +3), no default either.
+# 81, 6 and 15/100 for seeds 0-2; seed 0 at 5,000 / 30,000 steps: 43 / 14; with the committed draw,
+# now the default, at 5,000 steps: 49, 3 and 26/100); coherent sampling of 8 draws against 1, over
+# 7 runs: +18, +8, +9, +1, -2, -5, -5 points (mean +3), no default either.
 HEAD_DEFAULTS: dict[str, dict[str, Any]] = {}
 
 # With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
