@@ -69,16 +69,17 @@ class WindowSampler:
     def get(self, t: np.ndarray) -> Batch:
         """Windows around the frames ``t`` (indices into the concatenated arrays)."""
         t = np.asarray(t, dtype=np.int64)
-        lo, hi = self._start[t][:, None], self._last[t][:, None]
-        obs_idx = np.clip(t[:, None] + self._obs_offsets, lo, hi)
+        obs_idx = np.clip(t[:, None] + self._obs_offsets, self._start[t][:, None], self._last[t][:, None])
+        action, pad = self.actions(t)
+        return Batch(obs={k: v[obs_idx] for k, v in self.obs.items()}, action=action, action_pad=pad, index=t)
+
+    def actions(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The action windows ``[B, horizon, ...]`` of the frames ``t`` and their pad flags ``[B, horizon]``
+        (steps past the episode end, which repeat its last action), without gathering any observation."""
+        t = np.asarray(t, dtype=np.int64)
         raw_act = t[:, None] + self._act_offsets
-        act_idx = np.clip(raw_act, lo, hi)
-        return Batch(
-            obs={k: v[obs_idx] for k, v in self.obs.items()},
-            action=self.action[act_idx],
-            action_pad=raw_act > hi,
-            index=t,
-        )
+        hi = self._last[t][:, None]
+        return self.action[np.clip(raw_act, self._start[t][:, None], hi)], raw_act > hi
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
         return self.get(self.indices[rng.integers(0, len(self.indices), size=batch_size)])

@@ -326,25 +326,27 @@ class Windows:
     def __len__(self) -> int:
         return len(self.sampler)
 
-    def _window(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        b = self.sampler.get(t)
-        action, pad = b.action, b.action_pad
+    def _targets(self, t: np.ndarray, action: np.ndarray, pad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The sampler's action windows at ``t`` as targets: label flags split off, relative if so."""
         if self.partial:
             action, pad = action[..., :-1], pad | (action[..., -1] < 0.5)
         if self.base is not None:
-            action = action - self.base[b.index][:, None, :]
-        return b.obs, action, pad
+            action = action - self.base[t][:, None, :]
+        return action, pad
 
     def actions(self, t: np.ndarray) -> np.ndarray:
-        """``[B, H, A]`` raw actions of the windows at ``t``, relative to their query frame if so."""
-        return self._window(t)[1]
+        """``[B, H, A]`` raw actions of the windows at ``t``, relative to their query frame if so (no
+        observation or image is read)."""
+        t = np.asarray(t, dtype=np.int64)
+        return self._targets(t, *self.sampler.actions(t))[0]
 
     def get(self, t: np.ndarray) -> Batch:
-        frames, action, pad = self._window(t)
+        b = self.sampler.get(t)
+        action, pad = self._targets(b.index, b.action, b.action_pad)
         action = self.norm.normalize(action) if self.norm is not None else action
-        obs: Observation = torch.from_numpy(frames["obs"])
+        obs: Observation = torch.from_numpy(b.obs["obs"])
         if self.cameras:
-            obs = {STATE: obs, **{k: torch.from_numpy(frames[k]) for k in self.cameras}}
+            obs = {STATE: obs, **{k: torch.from_numpy(b.obs[k]) for k in self.cameras}}
         return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:

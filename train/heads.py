@@ -1,10 +1,11 @@
 """Output heads: a distribution over a normalised action chunk, read from a network's flat output.
 
-A head owns no weights (the discrete head keeps its bins' ranges as buffers): the network in front of it (BC's MLP, :mod:`demo.train.mlp`) ends in one
-linear layer of :attr:`ChunkHead.width` outputs, and the head says what they mean, how to score a
-demonstrated chunk under them (:meth:`ChunkHead.loss`) and how to act on them
-(:meth:`ChunkHead.sample`). Chunks are ``[B, H, A]``: ``H`` steps of ``A`` action dimensions,
-min-max normalised to [-1, 1] by the shared pipeline.
+A head owns no weights (the discrete head keeps its bins' ranges as buffers): the network in front
+of it (BC's MLP, :mod:`demo.train.mlp`) ends in one linear layer of :attr:`ChunkHead.width` outputs,
+and the head says what they mean, how to score a demonstrated chunk under them
+(:meth:`ChunkHead.loss`) and how to act on them (:meth:`ChunkHead.sample`). Chunks are
+``[B, H, A]``: ``H`` steps of ``A`` action dimensions, min-max normalised to [-1, 1] by the shared
+pipeline.
 
 - ``mse``: the chunk itself, regressed with mean squared error; acting returns it. Where the data
   holds two modes from one state, the regression lands on their average.
