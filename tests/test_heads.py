@@ -66,6 +66,32 @@ def test_gmm_likelihood_is_the_mixture_over_the_whole_chunk_and_pad_marginalises
     assert head.loss(out, action, keep).item() == pytest.approx((-marginal.log_prob(action[:, :2].flatten(1)) / 4).mean().item(), rel=1e-5)
 
 
+def test_gmm_wta_objective_fits_the_nearest_component_and_teaches_the_weights_its_index() -> None:
+    """``objective=wta``: each chunk is assigned to the component whose mean is nearest (not the one
+    that explains it best: a wide component at the average of two modes must not claim them); that
+    component is fitted by its Gaussian NLL, the weights by cross-entropy on its index, the others pulled
+    in by ``wta_epsilon`` times their squared distance. Padded steps drop out."""
+    head = GMMHead(horizon=2, action_dim=1, components=2, min_std=0.01, low_noise=True, objective="wta", wta_epsilon=0.1)
+    wide_at_average = [0.0, 0.0]  # component 0's mean; its scale is wide, its weight heavy
+    mean = torch.tensor([wide_at_average, [0.3, 0.3]])  # component 1 nearer the target, but narrow
+    raw_scale = torch.tensor([[3.0, 3.0], [-5.0, -5.0]])
+    logits = torch.tensor([2.0, 0.0])
+    out = torch.cat([mean.flatten(), raw_scale.flatten(), logits])[None]
+    action = torch.tensor([[[0.6], [0.6]]])
+    scale = torch.nn.functional.softplus(raw_scale[1]) + 0.01
+    nll = (0.5 * ((0.6 - 0.3) / scale) ** 2 + scale.log() + 0.5 * math.log(2 * math.pi)).mean()
+    mean_, scale_, log_w = head.split(out)
+    log_p = D.Normal(mean_, scale_).log_prob(action[:, None]).sum(dim=(2, 3)) + log_w
+    assert log_p.argmax().item() == 0  # by likelihood the wide component would take the chunk
+    ce = -torch.log_softmax(logits, 0)[1]
+    pull = 0.1 * 0.36  # the loser's mean squared distance, weighted by epsilon / (K - 1)
+    assert head.loss(out, action, None).item() == pytest.approx((nll + ce + pull).item(), rel=1e-5)
+    keep = torch.tensor([[True, False]])
+    far = action.clone()
+    far[:, 1] = -50.0  # a padded step's target decides nothing, not even the winner
+    assert head.loss(out, far, keep).item() == pytest.approx(head.loss(out, action, None).item(), rel=1e-5)
+
+
 def test_discrete_loss_is_cross_entropy_of_the_nearest_bin() -> None:
     head = make_head("discrete", 1, 1, bins=5)  # centres -1, -0.5, 0, 0.5, 1
     action = torch.tensor([[[0.3]]])  # nearest centre: 0.5, bin 3
@@ -93,12 +119,14 @@ def test_discrete_bins_span_each_steps_own_range() -> None:
         head.fit(np.zeros((3, 1)), np.zeros((3, 1)))
 
 
-@pytest.mark.parametrize("head", ["mse", "gmm", "discrete"])
-def test_training_lowers_the_loss_and_sampling_heads_keep_both_modes(head: str) -> None:
+@pytest.mark.parametrize("head, objective", [("mse", None), ("gmm", "wta"), ("gmm", "nll"), ("discrete", None)])
+def test_training_lowers_the_loss_and_sampling_heads_keep_both_modes(head: str, objective: str | None) -> None:
     """A bimodal target: from the same observation the chunk is all +0.6 or all -0.6, half each. MSE
-    regresses to their average; gmm and discrete sample both sides, and gmm whole chunks from one side."""
+    regresses to their average; gmm (either objective) and discrete sample both sides, and gmm whole
+    chunks from one side."""
     torch.manual_seed(0)
-    policy = build_policy("bc", SPEC, {"hidden": (32, 32), "head": head, **HEAD_OPTS[head]})
+    options = {"hidden": (32, 32), "head": head, **HEAD_OPTS[head], **({"objective": objective} if objective else {})}
+    policy = build_policy("bc", SPEC, options)
     opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
     obs = torch.zeros(256, 1, 3)
     side = torch.where(torch.arange(256) % 2 == 0, 0.6, -0.6)
@@ -130,6 +158,8 @@ def test_head_options_are_checked() -> None:
         build_policy("bc", SPEC, {"head": "discrete", "bins": "1"})
     with pytest.raises(DemoError, match="temperature"):
         build_policy("bc", SPEC, {"head": "gmm", "temperature": "-1"})
+    with pytest.raises(DemoError, match="objective must be one of nll, wta"):
+        build_policy("bc", SPEC, {"head": "gmm", "objective": "em"})
     # Every head is chunked and ensembled as BC is; a sampling head adds its own defaults (measured:
     # train/config.py), and a flag still wins.
     for head, settings in HEAD_DEFAULTS.items():

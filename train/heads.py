@@ -13,7 +13,14 @@ pipeline.
   *whole chunk vector* (one mixture weight per component per chunk, not per step, so a sampled chunk
   follows one mode from its first step to its last). Means are unconstrained (no tanh: the data's
   extremes are exactly -1 and 1, where a tanh mean has no gradient), scales ``softplus + min_std``.
-  Trained by negative log-likelihood. Acting draws a component from the mixture weights (sharpened
+  Trained (``objective``) by negative log-likelihood (``nll``, robomimic) or winner-takes-all
+  (``wta``): each chunk goes to the component whose mean is nearest (squared distance per kept
+  dimension), which alone is fitted by its Gaussian NLL, while the mixture weights learn that
+  component's index by cross-entropy and the others move towards the chunk with weight
+  ``wta_epsilon / (K - 1)`` (relaxed WTA, Rupprecht et al. 2017, so none is left behind far from the
+  data). Under the likelihood a wide component at the average of two modes explains both, and on
+  some seeds training stays there (measured on avoid: two components on the average, 3/100); the
+  nearest mean cannot be on both sides at once. Acting draws a component from the mixture weights (sharpened
   by ``temperature``: ``w^(1/T)``; 0 = the heaviest) with the caller's generator and returns its mean
   (robomimic's ``low_noise_eval``), or with ``low_noise`` off a full sample of that component.
 - ``discrete``: each step's each dimension falls into one of ``bins`` equal bins over that step's
@@ -40,6 +47,7 @@ from torch import nn
 from torch.nn import functional as F
 
 HEADS = ("mse", "gmm", "discrete")
+GMM_OBJECTIVES = ("nll", "wta")
 MIN_BIN_SPAN = 1e-3  # narrowest range of a discrete head's bins (normalised units): a constant dimension
 
 
@@ -66,6 +74,11 @@ def peek(generator: torch.Generator | None, sample: Callable[[], torch.Tensor]) 
     if generator is not None:
         generator.set_state(state)
     return out
+
+
+def log_normal(x: torch.Tensor, mean: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Elementwise log-density of ``x`` under ``N(mean, scale^2)``."""
+    return -0.5 * ((x - mean) / scale).square() - scale.log() - 0.5 * math.log(2 * math.pi)
 
 
 def masked_mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
@@ -130,10 +143,10 @@ class GMMHead(ChunkHead):
     """``components`` diagonal Gaussians over the flattened chunk; outputs per component: mean, scale, logit."""
 
     def __init__(self, horizon: int, action_dim: int, components: int, min_std: float, low_noise: bool,
-                 temperature: float = 1.0, commit: bool = False):
+                 temperature: float = 1.0, commit: bool = False, objective: str = "nll", wta_epsilon: float = 0.05):
         super().__init__(horizon, action_dim)
         self.components, self.min_std, self.low_noise, self.temperature = components, min_std, low_noise, temperature
-        self.commit = commit
+        self.commit, self.objective, self.wta_epsilon = commit, objective, wta_epsilon
 
     @property
     def width(self) -> int:
@@ -148,14 +161,32 @@ class GMMHead(ChunkHead):
         return mean.reshape(shape), F.softplus(scale.reshape(shape)) + self.min_std, F.log_softmax(logit, dim=1)
 
     def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
-        """Negative log-likelihood of the chunk per kept action dimension (nats), mean over the batch."""
+        """``nll``: negative log-likelihood of the chunk per kept action dimension (nats), mean over the batch."""
+        if self.objective == "wta":
+            return self.wta_loss(out, action, keep)
         mean, scale, log_w = self.split(out)
-        z = (action.float().unsqueeze(1) - mean) / scale
-        log_p = -0.5 * z.square() - scale.log() - 0.5 * math.log(2 * math.pi)  # [B, K, H, A]
+        log_p = log_normal(action.float().unsqueeze(1), mean, scale)  # [B, K, H, A]
         mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
         log_p = (log_p * mask[:, None, :, None]).sum(dim=(2, 3))  # [B, K]: the kept dimensions' marginal
         nll = -torch.logsumexp(log_w + log_p, dim=1)
         return (nll / (mask.sum(dim=1) * self.action_dim)).mean()
+
+    def wta_loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        """The winner's NLL per kept action dimension, plus cross-entropy of its index under the mixture
+        weights, plus the losers' weighted mean squared distance; mean over the batch."""
+        mean, scale, log_w = self.split(out)
+        mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
+        per = mask.sum(dim=1) * self.action_dim  # kept dimensions per chunk
+        sq = ((action.float().unsqueeze(1) - mean).square() * mask[:, None, :, None]).sum(dim=(2, 3)) / per[:, None]  # [B, K]
+        win = sq.argmin(dim=1)
+        k = self.components
+        weight = torch.full_like(sq, self.wta_epsilon / max(k - 1, 1)).scatter(1, win[:, None], 0.0)
+        wta = (weight * sq).sum(dim=1).mean()  # the losers drift towards the data, so none dies far away
+        ce = F.nll_loss(log_w, win)
+        rows = torch.arange(len(win), device=win.device)
+        log_p = log_normal(action.float(), mean[rows, win], scale[rows, win])  # [B, H, A]
+        nll = -((log_p * mask[:, :, None]).sum(dim=(1, 2)) / per).mean()
+        return wta + ce + nll
 
     def sample(self, out: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         mean, scale, log_w = self.split(out)
@@ -212,12 +243,13 @@ class DiscreteHead(ChunkHead):
 
 
 def make_head(name: str, horizon: int, action_dim: int, *, components: int = 5, min_std: float = 0.01,
-              low_noise: bool = True, bins: int = 64, temperature: float = 1.0, commit: bool = False) -> ChunkHead:
+              low_noise: bool = True, bins: int = 64, temperature: float = 1.0, commit: bool = False,
+              objective: str = "nll", wta_epsilon: float = 0.05) -> ChunkHead:
     """The head ``name`` (one of :data:`HEADS`) for ``[horizon, action_dim]`` chunks."""
     if name == "mse":
         return MSEHead(horizon, action_dim)
     if name == "gmm":
-        return GMMHead(horizon, action_dim, components, min_std, low_noise, temperature, commit)
+        return GMMHead(horizon, action_dim, components, min_std, low_noise, temperature, commit, objective, wta_epsilon)
     if name == "discrete":
         return DiscreteHead(horizon, action_dim, bins, temperature)
     raise ValueError(f"head must be one of {', '.join(HEADS)}, got {name!r}")

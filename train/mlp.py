@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from demo.train.heads import HEADS, ChunkHead, make_head
+from demo.train.heads import GMM_OBJECTIVES, HEADS, ChunkHead, make_head
 from demo.train.policy import Policy, PolicySpec, register_policy
 
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU, "mish": nn.Mish, "silu": nn.SiLU}
@@ -43,6 +43,11 @@ class MLPConfig:
     # ensembled chunks of an episode come from one mode; a fresh draw per query averages the modes
     # across the ensemble (avoid, seed 0: 49/100 against 25/100)
     commit: bool = True
+    # gmm: nll (robomimic) | wta, the nearest component fitted alone (demo.train.heads). On avoid (commit,
+    # seeds 0-2): wta 56, 45, 54/100, both sides on separate components on every seed; nll 49, 3, 26/100,
+    # where seeds 1 and 2 put their heaviest components on the average of the sides
+    objective: str = "wta"
+    wta_epsilon: float = 0.05  # gmm, wta: the losers' pull towards the chunk (relaxed WTA)
 
     def __post_init__(self) -> None:
         self.hidden = tuple(int(h) for h in self.hidden)
@@ -56,6 +61,9 @@ class MLPConfig:
             raise ValueError(f"head must be one of {', '.join(HEADS)}, got {self.head!r}")
         if self.components < 1 or self.min_std <= 0:
             raise ValueError(f"components must be >= 1 and min_std > 0, got {self.components}, {self.min_std}")
+        if self.objective not in GMM_OBJECTIVES or not 0.0 <= self.wta_epsilon < 1.0:
+            raise ValueError(f"objective must be one of {', '.join(GMM_OBJECTIVES)} and wta_epsilon in [0, 1), "
+                             f"got {self.objective!r}, {self.wta_epsilon}")
         if self.bins < 2 or self.temperature < 0:
             raise ValueError(f"bins must be >= 2 and temperature >= 0, got {self.bins}, {self.temperature}")
 
@@ -68,7 +76,8 @@ class MLPPolicy(Policy):
         super().__init__(spec, config)
         self.head: ChunkHead = make_head(config.head, spec.horizon, spec.action_dim, components=config.components,
                                          min_std=config.min_std, low_noise=config.low_noise, bins=config.bins,
-                                         temperature=config.temperature, commit=config.commit)
+                                         temperature=config.temperature, commit=config.commit,
+                                         objective=config.objective, wta_epsilon=config.wta_epsilon)
         layers: list[nn.Module] = []
         width = spec.n_obs * spec.obs_dim
         for h in config.hidden:
