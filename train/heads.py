@@ -160,23 +160,27 @@ class GMMHead(ChunkHead):
         shape = (b, k, self.horizon, self.action_dim)
         return mean.reshape(shape), F.softplus(scale.reshape(shape)) + self.min_std, F.log_softmax(logit, dim=1)
 
+    def kept(self, action: torch.Tensor, keep: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``[B, H]`` float mask of the kept chunk steps and ``[B]`` kept action dimensions per chunk."""
+        mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
+        return mask, mask.sum(dim=1) * self.action_dim
+
     def loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
         """``nll``: negative log-likelihood of the chunk per kept action dimension (nats), mean over the batch."""
         if self.objective == "wta":
             return self.wta_loss(out, action, keep)
         mean, scale, log_w = self.split(out)
         log_p = log_normal(action.float().unsqueeze(1), mean, scale)  # [B, K, H, A]
-        mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
+        mask, per = self.kept(action, keep)
         log_p = (log_p * mask[:, None, :, None]).sum(dim=(2, 3))  # [B, K]: the kept dimensions' marginal
         nll = -torch.logsumexp(log_w + log_p, dim=1)
-        return (nll / (mask.sum(dim=1) * self.action_dim)).mean()
+        return (nll / per).mean()
 
     def wta_loss(self, out: torch.Tensor, action: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
         """The winner's NLL per kept action dimension, plus cross-entropy of its index under the mixture
         weights, plus the losers' weighted mean squared distance; mean over the batch."""
         mean, scale, log_w = self.split(out)
-        mask = torch.ones_like(action[:, :, 0], dtype=torch.float32) if keep is None else keep.float()
-        per = mask.sum(dim=1) * self.action_dim  # kept dimensions per chunk
+        mask, per = self.kept(action, keep)
         sq = ((action.float().unsqueeze(1) - mean).square() * mask[:, None, :, None]).sum(dim=(2, 3)) / per[:, None]  # [B, K]
         win = sq.argmin(dim=1)
         k = self.components
