@@ -44,8 +44,10 @@ def train(
     seed: int = typer.Option(0, help="Seed of initialisation, sampling and the training episodes."),
     demos: int = typer.Option(None, help="Use the first N successful demonstrations.", show_default="all"),
     init_bc: bool = typer.Option(False, "--init-bc", help="gail, airl: fit the policy's mean to the demonstrations first."),
-    inputs: str = typer.Option("sa", metavar="sa|ss", help="gail: the discriminator reads (s, a) or (s, s')."),
+    inputs: str = typer.Option("sa", metavar="sa|ss|s", help="gail: the discriminator reads (s, a), (s, s') or s'."),
     grad_penalty: float = typer.Option(10.0, help="gail, airl: gradient penalty weight."),
+    gail_reward: str = typer.Option("softplus", metavar="softplus|logit",
+                                    help="gail: reward -log(1 - D) (softplus of the logit) or log D - log(1 - D) (the logit)."),
     disc_obs_keys: str = typer.Option(None, help="gail, airl: comma-separated obs.* keys the discriminator reads, e.g. "
                                       "obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos.", show_default="the policy's"),
     inner: int = typer.Option(5, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
@@ -77,7 +79,7 @@ def train(
             from demo.train.adversarial import AdversarialConfig, train as run_adversarial
 
             summary = run_adversarial(AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs,
-                                                        grad_penalty=grad_penalty, init_bc=init_bc,
+                                                        grad_penalty=grad_penalty, init_bc=init_bc, gail_reward=gail_reward,
                                                         disc_obs_keys=_keys(disc_obs_keys)),
                                       progress=progress, **common)
         else:

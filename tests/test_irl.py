@@ -47,6 +47,45 @@ def test_discriminator_separates_expert_from_random(kind: str, inputs: str) -> N
     assert (float(stats["expert_acc"]) + float(stats["policy_acc"])) / 2 > 0.85
 
 
+def test_state_only_discriminator_reads_where_a_transition_arrives() -> None:
+    """GAIL on s' alone: expert transitions arrive near the origin (a goal), the policy's 2 units away;
+    the logit, the reward with ``gail_reward="logit"``, is higher at the expert's states."""
+    torch.manual_seed(0)
+    expert, policy = _batches(256, 0)
+    expert["next_obs"], policy["next_obs"] = 0.1 * expert["next_obs"], policy["next_obs"] + 2.0
+    disc = Discriminator("gail", "s", expert["next_obs"].numpy(), 2, (32, 32), gamma=0.99)
+    assert disc.net[0].in_features == 4  # s' only: neither s nor a
+    optimizer = torch.optim.Adam(disc.parameters(), lr=1e-2)
+    for _ in range(100):
+        stats = discriminator_loss(disc, expert, policy, grad_penalty=0.1)
+        optimizer.zero_grad()
+        stats["loss"].backward()
+        optimizer.step()
+    with torch.no_grad():
+        shuffled = {**policy, "actions": expert["actions"], "obs": expert["obs"]}  # s and a cannot matter
+        assert torch.equal(disc.logits(shuffled), disc.logits(policy))
+        assert disc.logits(expert).mean() > disc.logits(policy).mean() + 2.0
+
+
+@pytest.mark.parametrize("field, value, flag", [("gail_reward", "exp", "--gail-reward"), ("inputs", "a", "--inputs")])
+def test_bad_adversarial_settings_are_refused(field: str, value: str, flag: str) -> None:
+    from demo.errors import DemoError
+    from demo.train.adversarial import AdversarialConfig
+
+    with pytest.raises(DemoError) as err:
+        AdversarialConfig(**{field: value}).check()
+    assert err.value.where == flag and repr(value) in err.value.problem
+
+
+def test_gail_rewards_of_the_discriminator() -> None:
+    from demo.train.adversarial import reward_of_logits
+
+    d = torch.tensor([0.01, 0.5, 0.99])  # D, the probability of "expert"
+    logits = torch.log(d) - torch.log1p(-d)
+    assert torch.allclose(reward_of_logits(logits, "softplus"), -torch.log1p(-d), atol=1e-5)
+    assert torch.allclose(reward_of_logits(logits, "logit"), torch.log(d) - torch.log1p(-d), atol=1e-5)
+
+
 def test_gradient_penalty_of_a_linear_discriminator() -> None:
     obs = np.array([[1.0, -1.0, 1.0], [-1.0, 1.0, -1.0]])  # mean 0, std 1: the standardiser is the identity
     disc = Discriminator("gail", "sa", obs, 2, (8,), gamma=0.99)
@@ -198,17 +237,19 @@ def test_maxent_run_reports_weights(maxent_run: tuple[Path, dict]) -> None:
     assert (out / "weights.png").is_file()
 
 
-def test_gail_from_bc(reach_store: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("inputs, reward", [("sa", "softplus"), ("s", "logit")])
+def test_gail_from_bc(inputs: str, reward: str, reach_store: Path, tmp_path: Path) -> None:
     from demo.train.adversarial import AdversarialConfig, load_reward, train
     from demo.train.ppo import PPOConfig
 
     rl = PPOConfig(task="reach", out=str(tmp_path / "gail"), total_steps=100, num_envs=2, num_steps=50, hidden=(32,),
                    eval_episodes=1)
     summary = train(AdversarialConfig(rl=rl, data=str(reach_store), kind="gail", init_bc=True, bc_steps=300,
-                                      disc_hidden=(32,)))
+                                      disc_hidden=(32,), inputs=inputs, gail_reward=reward))
     assert summary["bc_loss"] < 0.05  # the policy's mean fits the two demonstrations' actions
     disc, record = load_reward(rl.out)
-    assert record["adversarial"]["kind"] == "gail" and disc.kind == "gail"
+    assert record["adversarial"]["kind"] == "gail" and disc.kind == "gail" and disc.inputs == inputs
+    assert record["adversarial"]["gail_reward"] == reward
 
 
 @pytest.mark.parametrize("source, robot", [

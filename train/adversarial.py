@@ -12,9 +12,13 @@ iteration (:class:`demo.train.ppo.RLRun`):
 
 They differ in the discriminator and the reward (``D`` the probability of "expert", ``l`` its logit):
 
-- **GAIL**: ``l = D_net(s, a)`` (or ``D_net(s, s')`` with ``inputs="ss"``); reward
+- **GAIL**: ``l = D_net(s, a)`` (or ``D_net(s, s')`` with ``inputs="ss"``, ``D_net(s')`` with ``inputs="s"``); reward
   ``-log(1 - D) = softplus(l)``, positive, which is why RL episodes here run to the horizon
-  instead of ending on success (:mod:`demo.train.ppo`).
+  instead of ending on success (:mod:`demo.train.ppo`); or (``gail_reward="logit"``) ``log D -
+  log(1 - D) = l`` as DAC (Kostrikov et al. 2019) uses it, which does not flatten to 0 where ``D``
+  is near 0 (far from the demonstrations) as the softplus does. ``inputs="s"`` reads the state a
+  transition arrives at alone (state-only imitation, as GAIfO without the action): the policy's
+  exploration noise, visible in ``a`` and in ``s' - s``, then cannot tell it from the expert.
 - **AIRL**: ``D = exp(f) / (exp(f) + pi(a|s))`` with ``f(s, a, s') = g(s) + gamma h(s') - h(s)``
   (the disentangled form: ``g`` a state-only reward approximator, ``h`` a shaping potential, both
   MLPs; ``h(s') = 0`` after a terminal step), so ``l = f - log pi(a|s)``, with ``log pi`` the
@@ -73,6 +77,8 @@ from demo.train.ppo import MIN_STD, PPOConfig, RLRun, Rollout, mlp
 from demo.train.rewards import pearson
 
 KINDS = ("gail", "airl")
+GAIL_REWARDS = ("softplus", "logit")
+GAIL_INPUTS = {"sa": ("obs", "actions"), "ss": ("obs", "next_obs"), "s": ("next_obs",)}  # what D_net reads
 REWARD_FILE = "reward.safetensors"
 
 
@@ -82,7 +88,7 @@ class AdversarialConfig:
     data: str = ""  # the demonstrations (a store of the task, in the policy's action representation)
     kind: str = "gail"  # gail | airl
     demos: int | None = None  # the first N successful episodes (default all)
-    inputs: str = "sa"  # GAIL's discriminator input: sa (s, a) or ss (s, s'); AIRL is always (s, s') + log pi
+    inputs: str = "sa"  # GAIL's discriminator input: sa (s, a), ss (s, s') or s (s'); AIRL is always (s, s') + log pi
     disc_obs_keys: tuple[str, ...] = ()  # the state the discriminator reads (ObsSpec keys); default the policy's
     disc_hidden: tuple[int, ...] = (256, 256)
     disc_lr: float = 3e-4
@@ -91,13 +97,16 @@ class AdversarialConfig:
     grad_penalty: float = 10.0
     init_bc: bool = False
     bc_steps: int = 2000
+    gail_reward: str = "softplus"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
 
     def check(self) -> None:
         self.rl.check()
         if self.kind not in KINDS:
             raise DemoError("--algo", f"adversarial imitation is {' or '.join(KINDS)}, not {self.kind!r}")
-        if self.inputs not in ("sa", "ss"):
-            raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a) or ss (s, s'), not {self.inputs!r}")
+        if self.gail_reward not in GAIL_REWARDS:
+            raise DemoError("--gail-reward", f"GAIL's reward is {' or '.join(GAIL_REWARDS)}, not {self.gail_reward!r}")
+        if self.inputs not in GAIL_INPUTS:
+            raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a), ss (s, s') or s (s'), not {self.inputs!r}")
         if self.disc_epochs < 1 or self.disc_batch < 1 or self.grad_penalty < 0 or self.bc_steps < 0:
             raise DemoError("--disc-epochs", "disc_epochs and disc_batch must be >= 1, grad_penalty and bc_steps >= 0")
 
@@ -130,13 +139,14 @@ class Discriminator(nn.Module):
         self.norm = Standardizer(obs)
         d = obs.shape[1]
         if kind == "gail":
-            self.net = mlp([d + (action_dim if inputs == "sa" else d), *hidden, 1], out_gain=1.0)
+            self.net = mlp([sum(action_dim if k == "actions" else d for k in GAIL_INPUTS[inputs]), *hidden, 1], out_gain=1.0)
         else:
             self.g = mlp([d, *hidden, 1], out_gain=1.0)
             self.h = mlp([d, *hidden, 1], out_gain=1.0)
 
     def gail_input(self, obs: torch.Tensor, actions: torch.Tensor, next_obs: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self.norm(obs), actions if self.inputs == "sa" else self.norm(next_obs)], dim=-1)
+        given = {"obs": obs, "actions": actions, "next_obs": next_obs}
+        return torch.cat([given[k] if k == "actions" else self.norm(given[k]) for k in GAIL_INPUTS[self.inputs]], dim=-1)
 
     def f(self, obs: torch.Tensor, next_obs: torch.Tensor, terminal: torch.Tensor) -> torch.Tensor:
         """AIRL's ``g(s) + gamma h(s') - h(s)`` (``h(s') = 0`` after a terminal step)."""
@@ -154,12 +164,18 @@ class Discriminator(nn.Module):
         return self.f(b["obs"], b["next_obs"], b["terminal"]) - b["logpi"]
 
 
+def reward_of_logits(logits: torch.Tensor, form: str) -> torch.Tensor:
+    """The reward of transitions whose discriminator logits (of "expert") are ``logits``: ``softplus``
+    ``-log(1 - D)``, or ``logit`` ``log D - log(1 - D)``, the logit itself (module docstring)."""
+    return F.softplus(logits) if form == "softplus" else logits
+
+
 def gradient_penalty(disc: Discriminator, expert: dict[str, torch.Tensor], policy: dict[str, torch.Tensor]) -> torch.Tensor:
     """``(|grad_x l(x)| - 1)^2`` at random interpolations of expert and policy inputs (module docstring)."""
     eps = torch.rand(len(expert["obs"]), 1)
     mix = {k: (eps * expert[k] + (1 - eps) * policy[k]).requires_grad_(True) for k in ("obs", "actions", "next_obs")}
     if disc.kind == "gail":
-        inputs = [mix["obs"], mix["actions"] if disc.inputs == "sa" else mix["next_obs"]]
+        inputs = [mix[k] for k in GAIL_INPUTS[disc.inputs]]
         out = disc.net(disc.gail_input(mix["obs"], mix["actions"], mix["next_obs"]))[:, 0]
     else:
         inputs = [mix["obs"], mix["next_obs"]]
@@ -236,10 +252,11 @@ class Adversary:
         return out
 
     def reward(self, roll: Rollout) -> np.ndarray:
-        """``[T, N]`` rewards of the rollout: GAIL ``softplus(l)``, AIRL ``l = f - log pi``."""
+        """``[T, N]`` rewards of the rollout: GAIL ``softplus(l)`` (or ``l``), AIRL ``l = f - log pi``."""
         with torch.no_grad():
             logits = self.disc.logits(self.policy_batch(roll))
-        return (F.softplus(logits) if self.config.kind == "gail" else logits).numpy().reshape(roll.task_reward.shape)
+        form = self.config.gail_reward if self.config.kind == "gail" else "logit"
+        return reward_of_logits(logits, form).numpy().reshape(roll.task_reward.shape)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {f"discriminator.{k}": v.detach().clone() for k, v in self.disc.state_dict().items()}
