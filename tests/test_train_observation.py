@@ -86,3 +86,38 @@ def test_json_round_trip_and_checks_against_an_environment() -> None:
         spec.check_against({k: v for k, v in FEATURES.items() if k != "obs.object_quat"}, "env")
     with pytest.raises(DemoError, match="different size"):
         spec.check_against({**FEATURES, "obs.object_pos": FeatureSpec((3, 3))}, "env")
+
+
+def test_a_difference_of_quaternions_is_the_relative_rotation() -> None:
+    """``obs.object_quat-obs.ee_quat``: each object's orientation in the gripper's frame, R_ee^T R_obj,
+    unchanged when both turn together, sign-free; a quaternion minus a vector is refused."""
+    spec = ObsSpec.from_features(STATE_FEATURES, ["obs.object_quat-obs.ee_quat", "obs.object_pos-obs.ee_pos"])
+    assert spec.dims == (12, 6) and spec.transforms == ("relative_rotation", "difference")
+    assert ObsSpec.from_json(spec.to_json()) == spec
+    spec.check_against(FEATURES, "env")
+    rng = np.random.default_rng(2)
+    q = rng.normal(size=(4, 3, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    frames = {"obs.ee_quat": q[:, 0], "obs.object_quat": q[:, 1:], "obs.object_pos": rng.normal(size=(4, 2, 3)),
+              "obs.ee_pos": rng.normal(size=(4, 3))}
+    batch = spec.concat(frames)
+    turn = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(turn, np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]), 1.1)
+    for i in range(4):
+        assert np.allclose(spec.vector({k: v[i] for k, v in frames.items()}), batch[i], atol=1e-6)
+        mats = []
+        for quat in q[i]:
+            m = np.zeros(9)
+            mujoco.mju_quat2Mat(m, quat)
+            mats.append(m.reshape(3, 3))
+        for j in (1, 2):
+            rel = mats[0].T @ mats[j]
+            assert np.allclose(batch[i, 6 * (j - 1):6 * j], np.concatenate([rel[:, 0], rel[:, 1]]), atol=1e-5)
+        turned = {**{k: v[i] for k, v in frames.items()}, "obs.ee_quat": np.zeros(4), "obs.object_quat": np.zeros((2, 4))}
+        mujoco.mju_mulQuat(turned["obs.ee_quat"], turn, q[i, 0])
+        for j in (1, 2):
+            mujoco.mju_mulQuat(turned["obs.object_quat"][j - 1], turn, q[i, j])
+        turned["obs.object_quat"][0] *= -1  # the same rotation
+        assert np.allclose(spec.vector(turned)[:12], batch[i, :12], atol=1e-5)
+    with pytest.raises(DemoError, match="a quaternion and a vector do not subtract"):
+        ObsSpec.from_features({**STATE_FEATURES, "obs.goal": FeatureSpec((4,))}, ["obs.ee_quat-obs.goal"])

@@ -21,7 +21,9 @@ A key may also be a difference ``"obs.a-obs.b"`` of two position keys whose last
 (``obs.object_pos`` ``[K, 3]`` minus ``obs.ee_pos`` ``[3]`` gives every object relative to the
 gripper). By default every ``*_pos`` key with 3-vectors gets its offset from ``obs.ee_pos`` added:
 a grasp decision hinges on centimetres of that offset, which an MLP would otherwise have to compute
-as the difference of two inputs each normalised over half a metre.
+as the difference of two inputs each normalised over half a metre. A difference of two quaternion
+keys (``"obs.goal_quat-obs.ee_quat"``) is the first one's orientation in the second one's frame,
+``R_b^T R_a``, in the same 6D form: the rotation left to do, whatever the two absolute orientations.
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ MAX_LOW_DIM = 4096  # values per frame; anything larger is not a state vector
 PROPRIO_PREFIXES = ("obs.joint_", "obs.gripper", "obs.ee_")
 QUAT_TO_ROT6D = "quat_to_rot6d"
 DIFFERENCE = "difference"
+RELATIVE_ROTATION = "relative_rotation"
+PAIRED = (DIFFERENCE, RELATIVE_ROTATION)  # transforms of a key "obs.a-obs.b"
 
 
 def is_low_dim(key: str, spec: FeatureSpec) -> bool:
@@ -114,6 +118,14 @@ def quat_to_rot6d(q: np.ndarray) -> np.ndarray:
     return np.stack(col0 + col1, axis=-1).astype(np.float32)
 
 
+def relative_rot6d(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """``[..., 4]`` wxyz ``a`` and ``b`` -> ``[..., 6]``: columns 0 and 1 of ``R_b^T R_a`` (a in b's frame)."""
+    a, b = quat_to_rot6d(qa).astype(np.float64), quat_to_rot6d(qb).astype(np.float64)
+    b_cols = (b[..., :3], b[..., 3:], np.cross(b[..., :3], b[..., 3:]))
+    cols = [np.sum(bc * a[..., i:i + 3], axis=-1) for i in (0, 3) for bc in b_cols]
+    return np.stack(cols, axis=-1).astype(np.float32)
+
+
 def camera_list(images: Iterable[tuple[str, Sequence[int]]]) -> list[tuple[str, int, int]]:
     """``(key obs.image_<name>, shape [H, W, 3])`` pairs -> the cameras an environment renders: (name, width, height)."""
     return [(key[len(IMAGE_PREFIX):], int(shape[1]), int(shape[0])) for key, shape in images]
@@ -159,7 +171,7 @@ class ObsSpec:
         """The store/env keys the vector is built from."""
         out: list[str] = []
         for key, t in zip(self.keys, self.transforms):
-            for k in (_difference(key) or (key,)) if t == DIFFERENCE else (key,):
+            for k in (_difference(key) or (key,)) if t in PAIRED else (key,):
                 if k not in out:
                     out.append(k)
         return out
@@ -188,8 +200,12 @@ class ObsSpec:
                         raise DemoError(where, f"{key}: {k!r} is not a low-dimensional observation of this store")
                 if features[a].shape[-1:] != features[b].shape[-1:] or len(features[b].shape) != 1:
                     raise DemoError(where, f"{key}: shapes {features[a].shape} and {features[b].shape} do not subtract")
-                dims.append(int(np.prod(features[a].shape, dtype=np.int64)))
-                transforms.append(DIFFERENCE)
+                rotation = is_quaternion(a, features[a]) and is_quaternion(b, features[b])
+                if is_quaternion(a, features[a]) != is_quaternion(b, features[b]):
+                    raise DemoError(where, f"{key}: a quaternion and a vector do not subtract")
+                size = int(np.prod(features[a].shape, dtype=np.int64))
+                dims.append(size // 4 * 6 if rotation else size)
+                transforms.append(RELATIVE_ROTATION if rotation else DIFFERENCE)
                 continue
             if key not in features:
                 known = ", ".join(low_dim_keys(features)) or "none"
@@ -208,10 +224,13 @@ class ObsSpec:
         return cls(tuple(chosen), tuple(dims), tuple(transforms), tuple(images), shapes)  # type: ignore[arg-type]
 
     def _part(self, data: Mapping[str, np.ndarray], key: str, d: int, transform: str, n: int | None) -> np.ndarray:
-        if transform == DIFFERENCE:
+        if transform in PAIRED:
             a, b = _difference(key)  # type: ignore[misc]
             av, bv = np.asarray(data[a], dtype=np.float32), np.asarray(data[b], dtype=np.float32)
-            if n is None:
+            if transform == RELATIVE_ROTATION:
+                arr = relative_rot6d(av.reshape(-1, 4) if n is None else av.reshape(n, -1, 4),
+                                     bv.reshape(1, 4) if n is None else bv.reshape(n, 1, 4))
+            elif n is None:
                 arr = av.reshape(-1, bv.shape[-1]) - bv.reshape(1, -1)
             else:
                 arr = av.reshape(n, -1, bv.shape[-1]) - bv.reshape(n, 1, -1)
@@ -224,7 +243,7 @@ class ObsSpec:
     def concat(self, data: Mapping[str, np.ndarray]) -> np.ndarray:
         """Frames ``{key: [N, ...]}`` -> ``[N, dim]`` float32."""
         first = self.keys[0]
-        n = len(data[(_difference(first) or (first,))[0] if self.transforms[0] == DIFFERENCE else first])
+        n = len(data[(_difference(first) or (first,))[0] if self.transforms[0] in PAIRED else first])
         return np.concatenate([self._part(data, k, d, t, n) for k, d, t in zip(self.keys, self.dims, self.transforms)], axis=1)
 
     def vector(self, frame: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -239,7 +258,7 @@ class ObsSpec:
             if tuple(features[key].shape) != tuple(shape):
                 raise DemoError(where, f"camera image {key} is {tuple(features[key].shape)}; the policy was trained on {tuple(shape)}")
         for key, d, t in zip(self.keys, self.dims, self.transforms):
-            if t == DIFFERENCE:
+            if t in PAIRED:
                 pair = _difference(key) or (key,)  # not "a-b": then it names a missing observation
                 missing = [k for k in pair if k not in features]
                 if missing:
@@ -249,7 +268,7 @@ class ObsSpec:
                 raise DemoError(where, f"has no observation {key!r}, which the policy was trained on")
             shape = features[key].shape
             have = int(np.prod(shape, dtype=np.int64)) if shape else 1
-            if t == QUAT_TO_ROT6D:
+            if t in (QUAT_TO_ROT6D, RELATIVE_ROTATION):
                 have = have // 4 * 6
             if have != d:
                 raise DemoError(where, f"observation {key} has a different size ({shape}) from the one the policy was trained on")
@@ -264,7 +283,7 @@ class ObsSpec:
     def from_json(cls, d: Mapping[str, Any]) -> "ObsSpec":
         transforms = tuple(d.get("transforms") or ())
         for t in transforms:
-            if t not in ("", QUAT_TO_ROT6D, DIFFERENCE):
+            if t not in ("", QUAT_TO_ROT6D, *PAIRED):
                 raise ValueError(f"unknown observation transform {t!r}")
         images = d.get("images") or {}
         shapes = tuple(tuple(int(x) for x in s) for s in images.values())
