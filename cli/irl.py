@@ -49,7 +49,7 @@ def train(
     gail_reward: str = typer.Option("softplus", metavar="softplus|logit",
                                     help="gail: reward -log(1 - D) (softplus of the logit) or log D - log(1 - D) (the logit)."),
     disc_obs_keys: str = typer.Option(None, help="gail, airl: comma-separated obs.* keys the discriminator reads, e.g. "
-                                      "obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos.", show_default="the policy's"),
+                                      "obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat (the goal relative to the hand).", show_default="the policy's"),
     inner: int = typer.Option(5, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
     eval_every: int = typer.Option(_P.eval_every, help="PPO iterations between rollout evaluations (0: at the end only)."),
     eval_episodes: int = typer.Option(_P.eval_episodes, help="Episodes per rollout evaluation (monitoring seeds)."),

@@ -31,9 +31,11 @@ Gradient penalty (Gulrajani et al. 2017, as DAC uses it for adversarial imitatio
 discriminator's input; AIRL: ``(s, s')`` through ``f``), ``lambda = grad_penalty``.
 
 The discriminator reads the policy's observation vector, or its own (``disc_obs_keys``, e.g. the
-task-space ``obs.ee_quat,obs.goal_quat,obs.goal_pos-obs.ee_pos`` on reach: a state that leaves out
-the arm's joints, whose redundant posture tells expert from policy without telling success from
-failure, and that another arm reports too, so that AIRL's ``g`` transfers across robots). Its
+goal relative to the hand, ``obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat``, on reach: a
+state that leaves out the arm's joints, whose redundant posture tells expert from policy without
+telling success from failure, and the goal's absolute pose, which tells the demonstrations' few goals
+from the policy's new ones, and that another arm reports too, so that AIRL's ``g`` transfers across
+robots). Its
 inputs are standardised by the demonstrations' own mean and std (fixed, floored at
 :data:`demo.train.ppo.MIN_STD`) and clipped to +-OBS_CLIP; actions are in the policy's normalised
 units. ``--init-bc`` first fits the policy's mean to the demonstrations (MSE, ``bc_steps`` Adam
@@ -53,8 +55,9 @@ reaches success in that budget (0/100), where PPO on the dense reward needs ~400
 the discriminator reads the goal's absolute orientation: 20 values in 20 demonstrations, new ones in
 every policy episode, so the goal alone tells them apart. Read relative to the hand instead
 (``obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat`` with ``inputs="s"``), 480,000 steps bring
-it to 5-7 cm and 0.06-0.10 rad (reward correlation 0.49), still short of success (1 cm). AIRL's ``- log pi`` term outweighed ``f``: the policy's std grew
-from 0.37 to 1.07 (normalised units) as PPO maximised entropy.
+it to 5-7 cm and 0.06-0.10 rad (reward correlation 0.49), still short of success (1 cm). AIRL's
+``- log pi`` term outweighed ``f``: the policy's std grew from 0.37 to 1.07 (normalised units) as
+PPO maximised entropy.
 """
 
 from __future__ import annotations
