@@ -200,8 +200,8 @@ class ObsSpec:
                         raise DemoError(where, f"{key}: {k!r} is not a low-dimensional observation of this store")
                 if features[a].shape[-1:] != features[b].shape[-1:] or len(features[b].shape) != 1:
                     raise DemoError(where, f"{key}: shapes {features[a].shape} and {features[b].shape} do not subtract")
-                rotation = is_quaternion(a, features[a]) and is_quaternion(b, features[b])
-                if is_quaternion(a, features[a]) != is_quaternion(b, features[b]):
+                rotation = is_quaternion(a, features[a])
+                if rotation != is_quaternion(b, features[b]):
                     raise DemoError(where, f"{key}: a quaternion and a vector do not subtract")
                 size = int(np.prod(features[a].shape, dtype=np.int64))
                 dims.append(size // 4 * 6 if rotation else size)
