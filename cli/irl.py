@@ -12,6 +12,7 @@ from demo.cli.options import json_option, overwrite_option, robot_option
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
+from demo.train.adversarial import AdversarialConfig
 from demo.train.ppo import PPOConfig
 
 irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
@@ -19,7 +20,7 @@ irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PP
 app.add_typer(irl_app, name="irl")
 
 ALGOS = ("ppo", "gail", "airl", "maxent", "apprenticeship")
-_P = PPOConfig()  # the defaults live in the library's dataclasses
+_P, _A = PPOConfig(), AdversarialConfig()  # the defaults live in the library's dataclasses
 
 
 @irl_app.command("train")
@@ -43,13 +44,17 @@ def train(
     ent_coef: float = typer.Option(_P.ent_coef, help="Entropy bonus coefficient."),
     seed: int = typer.Option(0, help="Seed of initialisation, sampling and the training episodes."),
     demos: int = typer.Option(None, help="Use the first N successful demonstrations.", show_default="all"),
-    init_bc: bool = typer.Option(False, "--init-bc", help="gail, airl: fit the policy's mean to the demonstrations first."),
-    inputs: str = typer.Option("sa", metavar="sa|ss|s", help="gail: the discriminator reads (s, a), (s, s') or s'."),
-    grad_penalty: float = typer.Option(10.0, help="gail, airl: gradient penalty weight."),
-    gail_reward: str = typer.Option("softplus", metavar="softplus|logit",
+    init_bc: bool = typer.Option(_A.init_bc, "--init-bc/--no-init-bc",
+                                 help="gail, airl: fit the policy's mean to the demonstrations first."),
+    inputs: str = typer.Option(_A.inputs, metavar="sa|ss|s", help="gail: the discriminator reads (s, a), (s, s') or s'."),
+    grad_penalty: float = typer.Option(_A.grad_penalty, help="gail, airl: gradient penalty weight."),
+    gail_reward: str = typer.Option(_A.gail_reward, metavar="softplus|logit",
                                     help="gail: reward -log(1 - D) (softplus of the logit) or log D - log(1 - D) (the logit)."),
+    airl_reward: str = typer.Option(_A.airl_reward, metavar="logit|f",
+                                    help="airl: reward f - log pi (the paper's, entropy-regularised) or f alone."),
     disc_obs_keys: str = typer.Option(None, help="gail, airl: comma-separated obs.* keys the discriminator reads, e.g. "
-                                      "obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat (the goal relative to the hand).", show_default="the policy's"),
+                                      "obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat (the goal relative to the hand).",
+                                      show_default="the task's goal relative to the hand (reach), else the policy's"),
     inner: int = typer.Option(5, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
     eval_every: int = typer.Option(_P.eval_every, help="PPO iterations between rollout evaluations (0: at the end only)."),
     eval_episodes: int = typer.Option(_P.eval_episodes, help="Episodes per rollout evaluation (monitoring seeds)."),
@@ -76,10 +81,11 @@ def train(
 
             summary = run(rl, progress=progress, **common)
         elif algo in ("gail", "airl"):
-            from demo.train.adversarial import AdversarialConfig, train as run_adversarial
+            from demo.train.adversarial import train as run_adversarial
 
             summary = run_adversarial(AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs,
                                                         grad_penalty=grad_penalty, init_bc=init_bc, gail_reward=gail_reward,
+                                                        airl_reward=airl_reward,
                                                         disc_obs_keys=_keys(disc_obs_keys)),
                                       progress=progress, **common)
         else:

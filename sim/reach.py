@@ -50,6 +50,7 @@ class Reach(Task):
     name = "reach"
     defaults = {"pos_tol": 0.01, "rot_tol": 0.1}
     expert_class = ReachExpert
+    relative_goal_keys = ("obs.goal_pos-obs.ee_pos", "obs.goal_quat-obs.ee_quat")  # the rotation R_ee^T R_goal
 
     @property
     def horizon(self) -> int:

@@ -67,7 +67,8 @@ def test_state_only_discriminator_reads_where_a_transition_arrives() -> None:
         assert disc.logits(expert).mean() > disc.logits(policy).mean() + 2.0
 
 
-@pytest.mark.parametrize("field, value, flag", [("gail_reward", "exp", "--gail-reward"), ("inputs", "a", "--inputs")])
+@pytest.mark.parametrize("field, value, flag", [("gail_reward", "exp", "--gail-reward"), ("inputs", "a", "--inputs"),
+                                               ("airl_reward", "softplus", "--airl-reward")])
 def test_bad_adversarial_settings_are_refused(field: str, value: str, flag: str) -> None:
     from demo.errors import DemoError
     from demo.train.adversarial import AdversarialConfig
@@ -84,6 +85,19 @@ def test_gail_rewards_of_the_discriminator() -> None:
     logits = torch.log(d) - torch.log1p(-d)
     assert torch.allclose(reward_of_logits(logits, "softplus"), -torch.log1p(-d), atol=1e-5)
     assert torch.allclose(reward_of_logits(logits, "logit"), torch.log(d) - torch.log1p(-d), atol=1e-5)
+
+
+def test_airl_reward_with_and_without_the_entropy_term() -> None:
+    from demo.train.adversarial import transition_reward
+
+    torch.manual_seed(0)
+    _, policy = _batches(16, 0)
+    policy["terminal"] = (torch.arange(16) % 5 == 0).float()
+    policy["logpi"] = torch.randn(16) - 2.0
+    disc = Discriminator("airl", "ss", policy["obs"].numpy(), 2, (8,), gamma=0.9)
+    f = disc.f(policy["obs"], policy["next_obs"], policy["terminal"])
+    assert torch.allclose(transition_reward(disc, policy, "f"), f)  # no log pi: a wider policy earns nothing
+    assert torch.allclose(transition_reward(disc, policy, "logit"), f - policy["logpi"])
 
 
 def test_gradient_penalty_of_a_linear_discriminator() -> None:
@@ -244,12 +258,15 @@ def test_gail_from_bc(inputs: str, reward: str, reach_store: Path, tmp_path: Pat
 
     rl = PPOConfig(task="reach", out=str(tmp_path / "gail"), total_steps=100, num_envs=2, num_steps=50, hidden=(32,),
                    eval_episodes=1)
-    summary = train(AdversarialConfig(rl=rl, data=str(reach_store), kind="gail", init_bc=True, bc_steps=300,
+    summary = train(AdversarialConfig(rl=rl, data=str(reach_store), kind="gail", bc_steps=300,
                                       disc_hidden=(32,), inputs=inputs, gail_reward=reward))
-    assert summary["bc_loss"] < 0.05  # the policy's mean fits the two demonstrations' actions
+    assert summary["bc_loss"] < 0.05  # --init-bc, the default: the policy's mean fits the two demonstrations' actions
     disc, record = load_reward(rl.out)
     assert record["adversarial"]["kind"] == "gail" and disc.kind == "gail" and disc.inputs == inputs
     assert record["adversarial"]["gail_reward"] == reward
+    # By default the discriminator reads reach's goal relative to the hand, not the policy's observation.
+    assert record["adversarial"]["disc_obs"]["keys"] == ["obs.goal_pos-obs.ee_pos", "obs.goal_quat-obs.ee_quat"]
+    assert disc.norm.mean.shape == (3 + 6,)  # a position difference and a relative rotation in 6D
 
 
 @pytest.mark.parametrize("source, robot", [

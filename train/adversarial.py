@@ -24,7 +24,9 @@ They differ in the discriminator and the reward (``D`` the probability of "exper
   MLPs; ``h(s') = 0`` after a terminal step), so ``l = f - log pi(a|s)``, with ``log pi`` the
   policy's own log-likelihood of the action (recorded as drawn for its rollouts, evaluated under
   the current policy for the demonstrations); reward ``log D - log(1 - D) = f - log pi(a|s)``,
-  the entropy-regularised reward of the paper. ``g`` is the reward kept for transfer.
+  the entropy-regularised reward of the paper (``airl_reward="logit"``), or (``airl_reward="f"``)
+  ``f`` alone: PPO here has no entropy term of its own to balance ``- log pi``, which by itself
+  rewards a wider policy (measured below). ``g`` is the reward kept for transfer.
 
 Gradient penalty (Gulrajani et al. 2017, as DAC uses it for adversarial imitation): ``lambda *
 (|grad_x l(x)| - 1)^2`` at random interpolations ``x`` of expert and policy inputs (GAIL: the
@@ -55,9 +57,12 @@ reaches success in that budget (0/100), where PPO on the dense reward needs ~400
 the discriminator reads the goal's absolute orientation: 20 values in 20 demonstrations, new ones in
 every policy episode, so the goal alone tells them apart. Read relative to the hand instead
 (``obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat`` with ``inputs="s"``), 480,000 steps bring
-it to 5-7 cm and 0.06-0.10 rad (reward correlation 0.49), still short of success (1 cm). AIRL's
-``- log pi`` term outweighed ``f``: the policy's std grew from 0.37 to 1.07 (normalised units) as
-PPO maximised entropy.
+it to 5-7 cm and 0.06-0.10 rad (reward correlation 0.49), still short of success (1 cm), and
+1,200,000 steps to 4-6 cm and 0.05-0.07 rad, 1/100: these are the defaults. AIRL's ``- log pi``
+term outweighed ``f``: the policy's std grew from 0.37 to 1.07 (normalised units) as PPO maximised
+entropy; with the relative state, to 290 by 1,200,000 steps, while its ``g`` correlated 0.5-0.7 with
+the task's reward on those rollouts, yet PPO trained on that ``g`` afterwards moved away from the
+goal (50-80 cm at 300,000 steps): a reward fitted where a near-uniform policy goes.
 """
 
 from __future__ import annotations
@@ -77,6 +82,7 @@ from torch.nn import functional as F
 from demo.errors import DemoError
 from demo.jsonio import replace_atomically
 from demo.progress import Progress
+from demo.sim.tasks import TASKS
 from demo.train.expert_data import ExpertData
 from demo.train.normalizer import OBS_CLIP
 from demo.train.observation import ObsSpec
@@ -85,6 +91,7 @@ from demo.train.rewards import pearson
 
 KINDS = ("gail", "airl")
 GAIL_REWARDS = ("softplus", "logit")
+AIRL_REWARDS = ("logit", "f")
 GAIL_INPUTS = {"sa": ("obs", "actions"), "ss": ("obs", "next_obs"), "s": ("next_obs",)}  # what D_net reads
 REWARD_FILE = "reward.safetensors"
 
@@ -95,16 +102,18 @@ class AdversarialConfig:
     data: str = ""  # the demonstrations (a store of the task, in the policy's action representation)
     kind: str = "gail"  # gail | airl
     demos: int | None = None  # the first N successful episodes (default all)
-    inputs: str = "sa"  # GAIL's discriminator input: sa (s, a), ss (s, s') or s (s'); AIRL is always (s, s') + log pi
-    disc_obs_keys: tuple[str, ...] = ()  # the state the discriminator reads (ObsSpec keys); default the policy's
+    inputs: str = "s"  # GAIL's discriminator input: sa (s, a), ss (s, s') or s (s'); AIRL is always (s, s') + log pi
+    # the state the discriminator reads (ObsSpec keys); default the task's relative_goal_keys, else the policy's
+    disc_obs_keys: tuple[str, ...] = ()
     disc_hidden: tuple[int, ...] = (256, 256)
     disc_lr: float = 3e-4
     disc_epochs: int = 2  # passes over each iteration's rollout
     disc_batch: int = 256  # policy (and as many expert) samples per discriminator step
-    grad_penalty: float = 10.0
-    init_bc: bool = False
+    grad_penalty: float = 1.0
+    init_bc: bool = True
     bc_steps: int = 2000
     gail_reward: str = "softplus"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
+    airl_reward: str = "logit"  # airl: logit (f - log pi, the paper's) | f (without the entropy term)
 
     def check(self) -> None:
         self.rl.check()
@@ -112,6 +121,8 @@ class AdversarialConfig:
             raise DemoError("--algo", f"adversarial imitation is {' or '.join(KINDS)}, not {self.kind!r}")
         if self.gail_reward not in GAIL_REWARDS:
             raise DemoError("--gail-reward", f"GAIL's reward is {' or '.join(GAIL_REWARDS)}, not {self.gail_reward!r}")
+        if self.airl_reward not in AIRL_REWARDS:
+            raise DemoError("--airl-reward", f"AIRL's reward is {' or '.join(AIRL_REWARDS)}, not {self.airl_reward!r}")
         if self.inputs not in GAIL_INPUTS:
             raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a), ss (s, s') or s (s'), not {self.inputs!r}")
         if self.disc_epochs < 1 or self.disc_batch < 1 or self.grad_penalty < 0 or self.bc_steps < 0:
@@ -175,6 +186,14 @@ def reward_of_logits(logits: torch.Tensor, form: str) -> torch.Tensor:
     """The reward of transitions whose discriminator logits (of "expert") are ``logits``: ``softplus``
     ``-log(1 - D)``, or ``logit`` ``log D - log(1 - D)``, the logit itself (module docstring)."""
     return F.softplus(logits) if form == "softplus" else logits
+
+
+def transition_reward(disc: Discriminator, b: dict[str, torch.Tensor], form: str) -> torch.Tensor:
+    """The reward PPO is given for the transitions ``b``: ``softplus`` or ``logit`` of the discriminator's
+    logit (:func:`reward_of_logits`; AIRL's logit is ``f - log pi``), or ``f``, AIRL's ``f(s, a, s')`` alone."""
+    if form == "f":
+        return disc.f(b["obs"], b["next_obs"], b["terminal"])
+    return reward_of_logits(disc.logits(b), form)
 
 
 def gradient_penalty(disc: Discriminator, expert: dict[str, torch.Tensor], policy: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -259,11 +278,11 @@ class Adversary:
         return out
 
     def reward(self, roll: Rollout) -> np.ndarray:
-        """``[T, N]`` rewards of the rollout: GAIL ``softplus(l)`` (or ``l``), AIRL ``l = f - log pi``."""
+        """``[T, N]`` rewards of the rollout: GAIL ``softplus(l)`` (or ``l``), AIRL ``l = f - log pi`` (or ``f``)."""
+        form = self.config.gail_reward if self.config.kind == "gail" else self.config.airl_reward
         with torch.no_grad():
-            logits = self.disc.logits(self.policy_batch(roll))
-        form = self.config.gail_reward if self.config.kind == "gail" else "logit"
-        return reward_of_logits(logits, form).numpy().reshape(roll.task_reward.shape)
+            reward = transition_reward(self.disc, self.policy_batch(roll), form)
+        return reward.numpy().reshape(roll.task_reward.shape)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         return {f"discriminator.{k}": v.detach().clone() for k, v in self.disc.state_dict().items()}
@@ -323,8 +342,8 @@ def train(config: AdversarialConfig, *, progress: Progress | None = None, overwr
     rl_config = config.rl
     with RLRun(rl_config, name=config.kind, progress=progress, overwrite=overwrite, command=command) as rl:
         expert = rl.demonstrations(config.data, config.demos)
-        spec = ObsSpec.from_features(rl.pool.envs[0].features, config.disc_obs_keys or None, where="--disc-obs-keys") \
-            if config.disc_obs_keys else rl.pool.obs_spec
+        keys = config.disc_obs_keys or TASKS[rl_config.task].relative_goal_keys
+        spec = ObsSpec.from_features(rl.pool.envs[0].features, keys, where="--disc-obs-keys") if keys else rl.pool.obs_spec
         rl.record["adversarial"] = {**config.to_json(), "disc_obs": spec.to_json()}
         rl.open()
         adversary = Adversary(config, rl, expert, spec)
