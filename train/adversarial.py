@@ -58,7 +58,8 @@ the discriminator reads the goal's absolute orientation: 20 values in 20 demonst
 every policy episode, so the goal alone tells them apart. Read relative to the hand instead
 (``obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat`` with ``inputs="s"``), 480,000 steps bring
 it to 5-7 cm and 0.06-0.10 rad (reward correlation 0.49), still short of success (1 cm), and
-1,200,000 steps to 4-6 cm and 0.05-0.07 rad, 1/100: these are the defaults. AIRL's ``- log pi``
+1,200,000 steps to 4-6 cm and 0.05-0.07 rad, 1/100; with DAC's reward (``gail_reward="logit"``)
+480,000 steps reach 6/100 (5-6 cm, 0.06-0.09 rad at the end of training): these are the defaults. AIRL's ``- log pi``
 term outweighed ``f``: the policy's std grew from 0.37 to 1.07 (normalised units) as PPO maximised
 entropy; with the relative state, to 290 by 1,200,000 steps, while its ``g`` correlated 0.5-0.7 with
 the task's reward on those rollouts, yet PPO trained on that ``g`` afterwards moved away from the
@@ -115,7 +116,7 @@ class AdversarialConfig:
     grad_penalty: float = 1.0
     init_bc: bool = True
     bc_steps: int = 2000
-    gail_reward: str = "softplus"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
+    gail_reward: str = "logit"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
     airl_reward: str = "logit"  # airl: logit (f - log pi, the paper's) | f (without the entropy term)
 
     def check(self) -> None:
