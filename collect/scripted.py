@@ -101,8 +101,9 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
             operator.steer(expert)
         clean = np.asarray(expert.act(env), dtype=np.float32)
         sent = operator.command(t, clean, last_sent[0]) if operator else clean
-        executed = sent.copy()
-        if config.noise > 0:
+        executed = sent
+        if config.noise > 0:  # a noisy copy; without noise the one array is sent and recorded (neither is written to)
+            executed = sent.copy()
             executed[:n_arm] += rng.normal(0.0, config.noise, n_arm).astype(np.float32)
         last_sent[0] = sent
         # A person's dataset holds what they sent; a DART dataset holds the clean expert label.

@@ -15,6 +15,7 @@ Reset time is measured separately and subtracted. Figures are microseconds per c
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import mujoco
@@ -38,15 +39,23 @@ def expert_actions(env: Any, seeds: list[int]) -> dict[int, list[np.ndarray]]:
     return actions
 
 
-def replay_physics(env: Any, actions: dict[int, list[np.ndarray]]) -> None:
-    """Bare physics on recorded actions: per action set ``ctrl`` and ``mj_step(nstep=n_substeps)``."""
+def replay_physics(env: Any, episodes: Iterable[tuple[int, Sequence[np.ndarray]]]) -> None:
+    """Bare physics on recorded actions: per ``(reset seed, actions)`` episode, ``env.reset(seed)``,
+    then per action set ``ctrl`` and ``mj_step(nstep=n_substeps)``.
+
+    The task's own rule between steps (``task.after_step``: ``stack`` with ``repeat`` moves its pad
+    there; a no-op elsewhere) runs too, so that replaying a collected episode's executed actions
+    from its reset seed goes through the very states the collection simulated (MuJoCo clamps
+    ``ctrl`` to its range as ``env.step`` does; tested state for state)."""
     m, d = env.model, env.data
-    for s, episode in actions.items():
-        env.reset(s)
-        for a in episode:
+    after_step = env.task.after_step
+    for seed, actions in episodes:
+        env.reset(seed)
+        for a in actions:
             d.ctrl[env.arm_act] = env._arm_ctrl(a[:-1])
             d.ctrl[env.grip_act] = env._gripper_ctrl(a[-1])
             mujoco.mj_step(m, d, nstep=env.n_substeps)
+            after_step(env)
 
 
 def step_cost(task: str = "pick", episodes: int = 4, reps: int = 3, **task_options: Any) -> dict[str, Any]:
@@ -56,7 +65,7 @@ def step_cost(task: str = "pick", episodes: int = 4, reps: int = 3, **task_optio
     steps = sum(len(v) for v in actions.values())
 
     def physics() -> None:
-        replay_physics(env, actions)
+        replay_physics(env, actions.items())
 
     def env_step() -> None:
         for s in seeds:

@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical, mat_to_quat, quat_conj, quat_mul, yaw_of
+from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
 from demo.sim.numeric import clip
 from demo.sim.render import parse_cameras
@@ -269,7 +269,7 @@ class Env:
             "obs.joint_vel": self._qvel[self._arm_v].astype(np.float32),
             "obs.gripper": np.array([self.gripper_closedness()], dtype=np.float32),
             "obs.ee_pos": pos.astype(np.float32),
-            "obs.ee_quat": canonical(quat).astype(np.float32),
+            "obs.ee_quat": canonical_f32(quat),
         }
         self.task.observe(self, out)
         if self.cameras.specs:
@@ -296,7 +296,9 @@ class Env:
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """EE site pose in the base frame: position (m) and quaternion (wxyz)."""
         if self._base_is_world:
-            return self._ee_xpos.copy(), mat_to_quat(self._ee_xmat)
+            quat = np.empty(4)  # mat_to_quat of the site's (contiguous) row, without its wrapper: called every step
+            mujoco.mju_mat2Quat(quat, self._ee_xmat)
+            return self._ee_xpos.copy(), quat
         pos = self._base_rot_t @ (self._ee_xpos - self.base.pos)
         quat = quat_mul(self._base_quat_inv, mat_to_quat(self._ee_xmat))
         return pos, quat

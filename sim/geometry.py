@@ -110,6 +110,11 @@ def canonical(q: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def canonical_f32(q: np.ndarray) -> np.ndarray:
+    """``canonical(q).astype(np.float32)`` of one quaternion, one copy fewer (observations, every step)."""
+    return (-q if q[0] < 0 else q).astype(np.float32)
+
+
 def quat_angle(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) of the rotation between two unit quaternions."""
     d = abs(float(np.dot(a, b)))
@@ -122,21 +127,23 @@ def axis_angle_quat(axis: np.ndarray, angle: float) -> np.ndarray:
     if n < 1e-12 or angle == 0.0:
         return np.array([1.0, 0.0, 0.0, 0.0])
     s = math.sin(angle / 2) / n
-    return np.array([math.cos(angle / 2), axis[0] * s, axis[1] * s, axis[2] * s])
+    x, y, z = axis.tolist()  # Python floats: the same double products, without numpy scalars
+    return np.array([math.cos(angle / 2), x * s, y * s, z * s])
 
 
 def quat_step(current: np.ndarray, target: np.ndarray, max_angle: float) -> np.ndarray:
     """Rotate ``current`` toward ``target`` by at most ``max_angle`` rad (shortest way)."""
-    diff = quat_mul(target, np.asarray(current, dtype=np.float64) * _CONJ)
+    current = np.asarray(current, dtype=np.float64)
+    diff = np.empty(4)  # quat_mul(target, conj(current)), its wrapper left out (every control step)
+    mujoco.mju_mulQuat(diff, np.asarray(target, dtype=np.float64), current * _CONJ)
     w = float(diff[0])
     if w < 0:
         diff, w = -diff, -w
     angle = 2.0 * math.acos(min(1.0, w))
     if angle <= max_angle:
         return np.array(target, dtype=np.float64)
-    axis = diff[1:]
-    step = axis_angle_quat(axis, max_angle)
-    out = quat_mul(step, current)
+    out = np.empty(4)
+    mujoco.mju_mulQuat(out, axis_angle_quat(diff[1:], max_angle), current)
     return out / norm(out)
 
 
@@ -288,7 +295,9 @@ def down_quat(yaw: float) -> np.ndarray:
     """EE orientation pointing down (site z = -z) with site x = (cos yaw, sin yaw, 0)."""
     c, s = math.cos(yaw), math.sin(yaw)
     # columns: x = (c, s, 0), y = z cross x = (s, -c, 0), z = (0, 0, -1); row-major, flat
-    return mat_to_quat(np.array([c, s, 0.0, s, -c, 0.0, 0.0, 0.0, -1.0]))
+    out = np.empty(4)  # mat_to_quat's one-rotation case, called directly (experts, every control step)
+    mujoco.mju_mat2Quat(out, np.array([c, s, 0.0, s, -c, 0.0, 0.0, 0.0, -1.0]))
+    return out
 
 
 def yaw_of(quat: np.ndarray) -> float:

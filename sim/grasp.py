@@ -77,7 +77,9 @@ class BoxState:
 def box_yaw(quat: np.ndarray) -> float:
     """Heading of the box's most horizontal axis (a box looks the same every 90 deg)."""
     m = quat_to_mat(quat).tolist()
-    k = min(range(3), key=lambda j: abs(m[2][j]))  # the body axis (column) with the least vertical component (first of equals)
+    # The body axis (column) with the least vertical component, the first of equals.
+    z0, z1, z2 = abs(m[2][0]), abs(m[2][1]), abs(m[2][2])
+    k = 0 if z0 <= z1 and z0 <= z2 else (1 if z1 <= z2 else 2)
     return math.atan2(m[1][k], m[0][k])
 
 

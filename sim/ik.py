@@ -126,6 +126,7 @@ class ArmIK:
         self._uses_mocap = bool(avoid_geoms) and m.nmocap > 0
         self._sense: np.ndarray | None = None  # daqp's constraint kinds (all inequalities)
         self._no_rows = np.zeros((0, m.nv))  # G when no row limit is active
+        self._upper, self._lower = np.empty(m.nv), np.empty(m.nv)  # the per-DOF bounds on dq, per solve
         self._init_objective()
         self.failures = 0
 
@@ -200,9 +201,13 @@ class ArmIK:
             return v * self.dt
         H, c = self._objective()
         q = self.q if self._arm_is_q else self.q[self._qadr_of_dof]
-        gain = self._range_gain
-        upper = np.minimum(gain * (self._range_hi - q), self._max_step)
-        lower = np.maximum(-gain * (q - self._range_lo), self._neg_max_step)
+        # The bounds of ConfigurationLimit and VelocityLimit, computed in the solver's own buffers:
+        # upper = min(gain (hi - q), max_step), lower = max(-gain (q - lo), -max_step).
+        upper, lower = self._upper, self._lower
+        np.multiply(self._range_gain, np.subtract(self._range_hi, q, out=upper), out=upper)
+        np.minimum(upper, self._max_step, out=upper)
+        np.multiply(-self._range_gain, np.subtract(q, self._range_lo, out=lower), out=lower)
+        np.maximum(lower, self._neg_max_step, out=lower)
         rows = [limit.compute_qp_inequalities(self.configuration, self.dt) for limit in self._row_limits]
         rows = [r for r in rows if not r.inactive]
         if rows:
@@ -239,10 +244,10 @@ class ArmIK:
         body_jac = np.dot(_se3.se3_rotation_adjoint_from_xmat(xmat), self._jac)
         error = _se3.se3_rminus(target, frame)
         jacobian = np.dot(-_se3.se3_jlog(_se3.se3_inverse_multiply(target, frame)), body_jac)
-        np.multiply(frame_task.cost, -frame_task.gain * error, out=self._e_frame)
+        np.multiply(frame_task.cost, np.multiply(-frame_task.gain, error, out=self._e_frame), out=self._e_frame)
         np.multiply(self._frame_cost_column, jacobian, out=self._W_frame)
         mujoco.mj_differentiatePos(self.model, self._posture_error, 1.0, posture.target_q, self.q)
-        np.multiply(posture.cost, -posture.gain * self._posture_error, out=self._e_posture)
+        np.multiply(posture.cost, np.multiply(-posture.gain, self._posture_error, out=self._e_posture), out=self._e_posture)
         W, H, c = self._W, self._H, self._c
         np.dot(W.T, W, out=H)
         self._H_diagonal += self.params.damping  # + mink's mu, which is 0 without LM damping

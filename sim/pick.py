@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical, down_quat, yaw_of
+from demo.sim.geometry import canonical_f32, down_quat, yaw_of
 from demo.sim.grasp import BoxState, approach_and_grasp
 from demo.sim.scene import BaseFrame, add_box_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
@@ -100,7 +100,7 @@ class Pick(Task):
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
         pos, quat = env.body_pose(self.body)
         out["obs.object_pos"] = pos.astype(np.float32)[None]
-        out["obs.object_quat"] = canonical(quat).astype(np.float32)[None]
+        out["obs.object_quat"] = canonical_f32(quat)[None]
 
     def success(self, env: "Env") -> bool:
         pos, _ = env.body_pose(self.body)

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.geometry import canonical, down_quat, nearest_symmetric
+from demo.sim.geometry import canonical_f32, down_quat, nearest_symmetric
 from demo.sim.scene import BaseFrame, add_box_body, add_marker_geom, add_mocap_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
 from demo.store import FeatureSpec
@@ -142,7 +142,7 @@ class Push(Task):
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
         pos, quat = env.body_pose(self.body)
         out["obs.object_pos"] = pos.astype(np.float32)[None]
-        out["obs.object_quat"] = canonical(quat).astype(np.float32)[None]
+        out["obs.object_quat"] = canonical_f32(quat)[None]
         out["obs.goal_pos"] = self.goal(env).astype(np.float32)
 
     def success(self, env: "Env") -> bool:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from demo.sim.geometry import axis_angle_quat, canonical, down_quat, quat_angle, quat_mul
+from demo.sim.geometry import axis_angle_quat, canonical_f32, down_quat, quat_angle, quat_mul
 from demo.sim.scene import BaseFrame, add_marker_geom, add_mocap_body
 from demo.sim.task import Expert, ExpertParams, Task
 from demo.store import FeatureSpec
@@ -86,7 +86,7 @@ class Reach(Task):
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
         pos, quat = self.goal(env)
         out["obs.goal_pos"] = pos.astype(np.float32)
-        out["obs.goal_quat"] = canonical(quat).astype(np.float32)
+        out["obs.goal_quat"] = canonical_f32(quat)
 
     def success(self, env: "Env") -> bool:
         pos, quat = self.goal(env)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from demo.sim.benchmark import step_cost
+import numpy as np
+import pytest
+
+from demo.sim.benchmark import replay_physics, step_cost
 
 
 def test_step_cost_figures():
@@ -11,3 +14,21 @@ def test_step_cost_figures():
     assert r["control_steps"] > 5 and r["n_substeps"] == 25
     assert us["physics"] > 0 and us["collect"] > us["physics"]
     assert 0 < r["ratio_collect_to_physics"] < 1
+
+
+@pytest.mark.parametrize("task, options", [("pick", {}), ("avoid", {}), ("stack", {"blocks": 1, "repeat": 2})])
+def test_replaying_a_collected_store_goes_through_its_states(tmp_path, task, options):
+    """The bench's reference (bare mj_step on the collection's executed actions) simulates exactly
+    the collection's steps: the state after each replayed step is the next recorded frame's."""
+    from demo.bench.collect import recorded_episodes
+    from demo.collect.scripted import CollectConfig, collect_scripted, make_env_for
+    from demo.store import EpisodeStore
+
+    config = CollectConfig(task=task, episodes=2, seed=3, task_options=options)
+    collect_scripted(config, tmp_path / "s.zarr", workers=0)
+    states = [EpisodeStore.open(tmp_path / "s.zarr").read_episode(i, ["sim.state"])["sim.state"] for i in range(2)]
+    env = make_env_for(config)
+    for (seed, actions), recorded in zip(recorded_episodes(tmp_path / "s.zarr"), states):
+        for t in range(0, len(actions) - 1, 7):  # replay the first t + 1 actions: the state of frame t + 1
+            replay_physics(env, [(seed, actions[: t + 1])])
+            assert np.array_equal(env.get_state(), recorded[t + 1]), (task, seed, t)
