@@ -5,7 +5,12 @@ be plotted against horizon. ``repeat`` = K > 1 does it K times: once the stack s
 the gripper open, the pad moves to its next spot (drawn at reset, each at least ``2 SPACING`` from the
 last; the placements done and the spots are kept in ``data.userdata``, part of the state) and the
 stack must be built there again; success is the K-th stack, horizon ``60 + 100 N K``. Each cycle is
-the same skill from another start, so the horizon grows while the task does not get harder per step. Reset: the pad (a marker, mocap) and the N cubes (``cube_size``, 80 g
+the same skill from another start, so the horizon grows while the task does not get harder per step.
+With ``respawn`` = 1 the cubes are also put back on the table then, at spots drawn at reset (at least
+``SPACING`` from each other, from the pad's new spot and from its last one, where the hand is; random
+headings): every cycle is then a whole pick-and-place from the table, as the first one is, rather than
+a short move of a cube that already stands under the open hand, so a learner's chance of failing is
+about the same in every cycle and its success falls with K (``repeat`` = 1 ignores it). Reset: the pad (a marker, mocap) and the N cubes (``cube_size``, 80 g
 each, distinct colours, random headings) are spread over x 0.38..0.64, |y| <= 0.25 m (base frame),
 at least 9 cm apart. Success: every cube i rests on the pad at level i (centre within 2 cm of the
 pad axis and 1 cm of height ``(i + 1/2) cube_size``) and the gripper is open.
@@ -67,6 +72,8 @@ NEAR = 0.05  # m: saturation of the near-field observations (object_in_ee, objec
 PARKING = [(x, y) for y in (-0.28, 0.28, -0.2, 0.2) for x in (0.36, 0.46, 0.56, 0.66)]
 MAX_REPEAT = 8
 DONE_SLOT = 0  # repeat > 1: data.userdata[0] = stacks completed so far; [1 + 2 i : 3 + 2 i] = the pad's i-th spot (x, y)
+# respawn: after the pad's spots, per later cycle c = 1..K-1 and cube j, its (x, y, yaw) at
+# [respawn_slot(K) + 3 (N (c - 1) + j) : ... + 3].
 
 
 @dataclasses.dataclass
@@ -145,7 +152,7 @@ class StackExpert(Expert):
 
 class Stack(Task):
     name = "stack"
-    defaults = {"blocks": 2, "cube_size": 0.04, "repeat": 1}
+    defaults = {"blocks": 2, "cube_size": 0.04, "repeat": 1, "respawn": 0}
     expert_class = StackExpert
 
     def __init__(self, **options):
@@ -155,6 +162,11 @@ class Stack(Task):
         if not 0.03 <= self.size <= 0.05:
             raise DemoError("stack", f"cube_size must be within 0.03..0.05 m, got {self.size}")
         self.repeat = self._count("repeat", MAX_REPEAT)
+        respawn = self.options["respawn"]
+        if respawn not in (0, 1, False, True):
+            raise DemoError("stack", f"respawn must be 0 or 1, got {respawn!r}")
+        self.respawn = bool(respawn) and self.repeat > 1
+        self._respawn_slot = DONE_SLOT + 1 + 2 * self.repeat
 
     def _count(self, key: str, most: int) -> int:
         """The integer option ``key``, refused outside 1..``most``."""
@@ -177,7 +189,8 @@ class Stack(Task):
         pad = add_mocap_body(spec, "pad")
         add_marker_geom(pad, mujoco.mjtGeom.mjGEOM_BOX, [h + 0.01, h + 0.01, 0.0008], [0.1, 0.8, 0.2, 0.6], pos=[0, 0, 0.0008])
         if self.repeat > 1:
-            spec.nuserdata = max(spec.nuserdata, DONE_SLOT + 1 + 2 * self.repeat)
+            respawns = 3 * self.n * (self.repeat - 1) if self.respawn else 0
+            spec.nuserdata = max(spec.nuserdata, self._respawn_slot + respawns)
 
     def bind(self, env: "Env") -> None:
         m = env.model
@@ -208,9 +221,22 @@ class Stack(Task):
                 while np.linalg.norm(spot - last) < 2 * SPACING:
                     spot = np.array([rng.uniform(*REGION[0]), rng.uniform(*REGION[1])])
                 d.userdata[DONE_SLOT + 1 + 2 * i : DONE_SLOT + 3 + 2 * i] = last = spot
+        if self.respawn:  # drawn after the pad's spots, so that the pad's stay as they were
+            d = env.data
+            for c in range(1, self.repeat):
+                taken = [d.userdata[DONE_SLOT + 1 + 2 * i : DONE_SLOT + 3 + 2 * i].copy() for i in (c - 1, c)]
+                for j in range(self.n):
+                    while True:
+                        p = np.array([rng.uniform(*REGION[0]), rng.uniform(*REGION[1])])
+                        if all(np.linalg.norm(p - q) >= SPACING for q in taken):
+                            break
+                    taken.append(p)
+                    at = self._respawn_slot + 3 * (self.n * (c - 1) + j)
+                    d.userdata[at : at + 3] = p[0], p[1], rng.uniform(-math.pi, math.pi)
 
     def after_step(self, env: "Env") -> None:
-        """repeat > 1: a finished stack that is not the last moves the pad to its next spot."""
+        """repeat > 1: a finished stack that is not the last moves the pad to its next spot (and,
+        with ``respawn``, puts the cubes back on the table at theirs)."""
         if self.repeat == 1 or not self._stacked(env):
             return
         d = env.data
@@ -219,6 +245,11 @@ class Stack(Task):
             d.userdata[DONE_SLOT] = done + 1
             xy = d.userdata[DONE_SLOT + 3 + 2 * done : DONE_SLOT + 5 + 2 * done]
             env.set_mocap_pose(self.mocap, np.array([xy[0], xy[1], 0.0]))
+            if self.respawn:
+                for j, joint in enumerate(self.joints):
+                    at = self._respawn_slot + 3 * (self.n * done + j)
+                    x, y, yaw = d.userdata[at : at + 3]
+                    place_free_body(env, joint, np.array([x, y, self.size / 2]), float(yaw))
             mujoco.mj_forward(env.model, d)
 
     def goal(self, env: "Env") -> np.ndarray:

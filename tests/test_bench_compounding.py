@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from demo.bench.compounding import METHODS, CompoundingConfig, fit_growth, format_table, meets_target, run
@@ -107,3 +108,28 @@ def test_stack_repeat_is_the_horizon_the_bench_climbs() -> None:
     # Success only with the last stack: the frame before the first move held a finished stack.
     env.set_state(episode.data["sim.state"][moves[0]])
     assert not env.success()
+
+
+def test_stack_respawn_puts_the_cube_back_on_the_table_each_cycle() -> None:
+    """respawn = 1: after each finished stack but the last, the cube is put back on the table at a
+    spot drawn at reset, away from both pads; the pad's spots are those of repeat alone."""
+    from demo.errors import DemoError
+    from demo.sim import make_env
+    from demo.sim.rollout import run_expert
+
+    plain, respawning = make_env("stack", blocks=1, repeat=3), make_env("stack", blocks=1, repeat=3, respawn=1)
+    plain.reset(2)
+    respawning.reset(2)
+    np.testing.assert_array_equal(plain.data.userdata[:7], respawning.data.userdata[:7])
+    episode = run_expert(respawning, 2, record=True)
+    assert episode.success and int(respawning.data.userdata[0]) == 2
+    cube, pads = episode.data["obs.object_pos"][:, 0], episode.data["obs.goal_pos"]
+    moves = np.flatnonzero(np.abs(np.diff(pads[:, 0])) + np.abs(np.diff(pads[:, 1])) > 1e-6)
+    assert len(moves) == 2
+    for m in moves:  # the frame after a pad move: the cube rests on the table, away from both pads
+        after = cube[m + 1]
+        assert abs(after[2] - 0.02) < 0.002
+        assert min(np.linalg.norm(after[:2] - pads[m, :2]), np.linalg.norm(after[:2] - pads[m + 1, :2])) >= 0.09
+    assert episode.length > run_expert(make_env("stack", blocks=1, repeat=3), 2).length  # whole cycles take longer
+    with pytest.raises(DemoError, match="respawn must be 0 or 1"):
+        make_env("stack", blocks=1, repeat=2, respawn=2)

@@ -104,6 +104,16 @@ def test_reach_features_and_reward() -> None:
     assert quat_angles(down[None], -down[None]) == pytest.approx([0.0])  # q and -q are one rotation
 
 
+def test_pick_features_follow_the_staged_lift() -> None:
+    reward = TASK_REWARDS["pick"]
+    obs = {"obs.ee_pos": np.array([[0.5, 0.0, 0.12], [0.5, 0.0, 0.07], [0.5, 0.0, 0.2]]),
+           "obs.object_pos": np.array([[[0.5, 0.0, 0.02]], [[0.5, 0.0, 0.07]], [[0.5, 0.0, 0.2]]])}
+    phi = reward.features(obs, None, {"cube_size": 0.04, "lift_height": 0.10})
+    # resting 10 cm below the hand; held 5 cm up; held 18 cm up (lift clipped at 10 cm, success)
+    assert phi == pytest.approx(np.array([[0.1, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.10, 1.0]]), abs=1e-9)
+    assert reward(obs, None, {"cube_size": 0.04, "lift_height": 0.10}) == pytest.approx([-1.0, 1.0, 4.0])
+
+
 def test_ppo_run_directory_evaluates(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from demo.cli.main import main
 

@@ -22,6 +22,13 @@ weights that compare directly with these, and any learned reward can be correlat
   so a collision costs every step that follows it (RL episodes do not end on it);
 - ``success`` [0/1]: within ``tol`` (2 cm) of the goal and never touched, weight +2.
 
+``pick`` (robosuite's staged lift reward made linear):
+
+- ``reach_err`` [m]: distance from the EE site to the cube centre, weight -10;
+- ``lift`` [m]: the cube's height above its resting height (``cube_size / 2``), clipped to
+  [0, ``lift_height``] (10 cm by default), weight +20 (+2 at the full lift);
+- ``success`` [0/1]: the cube at least ``lift_height`` above its rest (the task's success), weight +2.
+
 The features are numpy over batches: every function takes observation arrays with a leading batch
 axis (a store's episodes or the observations of several environments). :func:`pearson` measures how
 well a learned reward follows the dense one over the same transitions.
@@ -60,6 +67,15 @@ def _avoid(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[s
     return np.stack([goal_err, touched, success.astype(np.float64)], axis=-1)
 
 
+def _pick(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[str, Any]) -> np.ndarray:
+    cube = np.asarray(obs["obs.object_pos"], np.float64)[:, 0]  # [N, 3]: the one cube
+    reach_err = np.linalg.norm(np.asarray(obs["obs.ee_pos"], np.float64) - cube, axis=-1)
+    lift_height = float(options.get("lift_height", 0.10))
+    height = cube[:, 2] - float(options.get("cube_size", 0.04)) / 2
+    success = height >= lift_height
+    return np.stack([reach_err, np.clip(height, 0.0, lift_height), success.astype(np.float64)], axis=-1)
+
+
 @dataclass(frozen=True)
 class TaskReward:
     """A task's dense reward ``weights . features(obs, failed, options)`` (module docstring)."""
@@ -91,6 +107,7 @@ class TaskReward:
 TASK_REWARDS: dict[str, TaskReward] = {
     "reach": TaskReward("reach", ("pos_err", "rot_err", "success"), ("m", "rad", "1"), (-10.0, -1.0, 2.0), _reach),
     "avoid": TaskReward("avoid", ("goal_err", "touched", "success"), ("m", "1", "1"), (-10.0, -5.0, 2.0), _avoid),
+    "pick": TaskReward("pick", ("reach_err", "lift", "success"), ("m", "m", "1"), (-10.0, 20.0, 2.0), _pick),
 }
 
 
