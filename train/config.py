@@ -88,9 +88,10 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
 # paired demos, 100 episodes per run, training seeds 0-2): 56, 45, 54/100 at BC's 5,000 steps; 85, 83,
 # 81 at 15,000; 90, 84, 87 at 30,000 (about 5 min of one core). Success rises while the validation
 # loss does not (seed 0: -3.20 at 15,000, -3.04 at 30,000): the demonstrations pass 2 cm from the
-# obstacle, and the longer fit keeps the component means that close. (Before winner-takes-all, with the likelihood objective and a fresh draw per query: seed 0
-# 43 / 81 / 14 at 5,000 / 15,000 / 30,000 steps, seeds 1-2 6 and 15 at 15,000.) Coherent sampling of 16
-# draws at 30,000 steps: 91 against 90 (seed 0), no default.
+# obstacle, and the longer fit keeps the component means that close. (Before winner-takes-all, with
+# the likelihood objective and a fresh draw per query: seed 0 43 / 81 / 14 at 5,000 / 15,000 / 30,000
+# steps, seeds 1-2 6 and 15 at 15,000.) Coherent sampling of 16 draws at 30,000 steps: 91 against 90
+# (seed 0), no default.
 HEAD_DEFAULTS: dict[str, dict[str, Any]] = {"gmm": {"steps": 30000}}
 
 # With camera images (demo.train.visuomotor) a batch costs ~1000x a state batch on a CPU: smaller
