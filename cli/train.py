@@ -320,6 +320,10 @@ def bench_compounding(
     gate: str = typer.Option(_C.gate, help="HG-DAgger's gate (SafeDAgger's deviation threshold)."),
     steps: int = typer.Option(_C.steps, help="Optimiser steps of BC and of every family member's round 0."),
     round_steps: int = typer.Option(_C.round_steps, help="Optimiser steps per DAgger round."),
+    warm_start: bool = typer.Option(_C.warm_start, "--warm-start/--no-warm-start",
+                                    help="Each round fine-tunes the previous learner instead of training a new one."),
+    max_labels: int = typer.Option(_C.max_labels, help="One expert-label budget for every horizon (HG-DAgger stops there); "
+                                   "0: none, HG-DAgger's rounds set each horizon's budget."),
     hidden: str = typer.Option(",".join(map(str, _C.hidden)), help="Hidden widths of every method's MLP."),
     batch_size: int = typer.Option(_C.batch_size, help="Windows per batch of every method."),
     chunk: int = typer.Option(_C.chunk, help="Chunk length of the chunked-BC line."),
@@ -343,7 +347,7 @@ def bench_compounding(
     config = CompoundingConfig(out=str(out), task=task, option=option, values=ints("--values", values), task_options=fixed,
                                methods=tuple(m.strip() for m in methods.split(",") if m.strip()), seed=seed, demos=demos,
                                pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta, gate=gate,
-                               steps=steps, round_steps=round_steps, hidden=ints("--hidden", hidden), batch_size=batch_size,
+                               steps=steps, round_steps=round_steps, warm_start=warm_start, max_labels=max_labels or None, hidden=ints("--hidden", hidden), batch_size=batch_size,
                                chunk=chunk, noise=noise, val_fraction=val_fraction, candidates=candidates, sigma=sigma,
                                eval_episodes=eval_episodes,
                                workers=workers)

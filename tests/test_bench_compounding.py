@@ -47,12 +47,12 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
 
     for method in METHODS:
         assert load_bundle(row[method]["run"]).execution.binary == (7,)
-    assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] == "deviation:0.05"
+    assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] == "deviation:0.03"
     assert "hg_dagger" in format_table(result) and result["meets_target"] is False
     # A rerun (here the CLI's, its JSON alone on stdout) reuses every stage instead of repeating it.
     capfd.readouterr()
-    assert main(["bench", "compounding", "--out", str(tmp_path), "--values", "1", "--task-opt", "blocks=1", "--demos", "3",
-                 "--pool", "6", "--rounds", "1", "--episodes-per-round", "1", "--steps", "30", "--round-steps", "20",
+    assert main(["bench", "compounding", "--out", str(tmp_path), "--values", "1", "--demos", "3", "--pool", "6",
+                 "--rounds", "1", "--episodes-per-round", "1", "--steps", "30", "--round-steps", "20",
                  "--hidden", "16", "--batch-size", "32", "--chunk", "4", "--eval-episodes", "2", "--val-fraction", "0.34",
                  "--candidates", "1", "--methods", "bc,hg_dagger,safedagger", "--json", "-"]) == 0
     again = json.loads(capfd.readouterr().out)
@@ -67,6 +67,35 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
 
     with pytest.raises(DemoError, match="other hidden"):
         run(dataclasses.replace(config, hidden=(32,)), log=lambda text: None)
+
+
+def test_a_fixed_label_budget_stops_hg_dagger_and_is_part_of_the_cache(tmp_path: Path) -> None:
+    config = CompoundingConfig(out=str(tmp_path), values=(1,), demos=3, pool=6, rounds=4, episodes_per_round=2,
+                               steps=30, round_steps=20, hidden=(16,), batch_size=32, eval_episodes=2, val_fraction=0.34,
+                               methods=("bc", "hg_dagger"), warm_start=True, max_labels=250)
+    (row,) = run(config, log=lambda text: None)["rows"]
+    totals = [r["labels_total"] for r in row["hg_dagger"]["rounds"]]
+    # Stopped by the budget (before its last round), by the end of the episode that reached it.
+    assert len(totals) < 1 + config.rounds and totals[-2] < 250 <= totals[-1] == row["expert_labels"]
+    assert row["bc"]["expert_labels"] >= row["expert_labels"]
+    from demo.train.checkpoint import read_run
+
+    assert read_run(row["hg_dagger"]["run"])["dagger"]["warm_start"] is True
+    import dataclasses
+
+    from demo.errors import DemoError
+
+    with pytest.raises(DemoError, match="other max_labels"):
+        run(dataclasses.replace(config, max_labels=300), log=lambda text: None)
+    # A directory made before a key existed ran without it: no warm start, no fixed budget.
+    saved = tmp_path / "stack_repeat1" / "configuration.json"
+    old = json.loads(saved.read_text())
+    del old["warm_start"], old["max_labels"]
+    saved.write_text(json.dumps(old))
+    with pytest.raises(DemoError, match="other max_labels, warm_start"):
+        run(config, log=lambda text: None)
+    with pytest.raises(DemoError, match="at least 1"):
+        dataclasses.replace(config, max_labels=0).check()
 
 
 def test_fit_recovers_the_failure_rate() -> None:
