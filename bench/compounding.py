@@ -77,7 +77,7 @@ At these defaults (K = 1..4, 100 eval episodes each): HG-DAgger 94, 98, 94, 86% 
 (4,930-6,011 labels; BC on 83, 63, 45, 35 demonstrations): the gap grows from 7 to 44 points, the
 fitted failure growth 0.022 against 0.19 per 100 steps. DART with its estimated noise 85, 80, 84, 84%;
 fixed-noise DART 77, 71, 49, 47%; BC + chunking 61, 26, 11, 0%; plain DAgger 29, 10, 32, 23%;
-SafeDAgger 70 (K = 1), 40 (K = 3), 73% (K = 4); AggreVaTe 41 (K = 3), 53% (K = 4); perturbation <= 4%.
+SafeDAgger 70 (K = 1), 40 (K = 3), 73% (K = 4); AggreVaTe 41 (K = 3), 53% (K = 4); perturbation 1, 1, 3, 4%.
 
 Why the mixing schedule of plain DAgger (``beta = "linear:4"``): with ``indicator`` (the learner drives
 from round 1) the early learners, trained on a few demonstrations, stall in every rollout (a fixed
