@@ -8,7 +8,7 @@ already reached 90% (below); ``--option blocks`` gives the N-block stacks (``60 
 horizon gets the same expert-label budget ``max_labels`` (below). For each of its ``values``:
 
 1. collect a pool of scripted demonstrations (``demo collect``'s library, seed ``seed``);
-2. **HG-DAgger** (``hg_dagger``, ``gate = "deviation:0.05"``): round 0 on the first ``demos`` of them,
+2. **HG-DAgger** (``hg_dagger``, ``gate = "deviation:0.03"``): round 0 on the first ``demos`` of them,
    then at most ``rounds`` x ``episodes_per_round`` learner rollouts where the expert takes over when
    the learner strays (:mod:`demo.train.dagger`), stopping once ``max_labels`` are spent. Its
    expert-label count ``L`` (demonstration frames + the frames the expert controlled) is every
@@ -58,12 +58,11 @@ at K = 1-4). K = 1..4 at the defaults: HG-DAgger 94, 86, 92, 83%, BC 74, 67, 70,
 labels); with ``demos`` = 10: HG-DAgger 89, 88, 91, 85%, BC 60, 67, 62, 54% (3,387-7,408 labels), the
 fitted failure growth 0.009 against 0.035 per 100 steps. DAgger holds above 80% at the longest
 horizon, BC stays 16-31 points lower and the gap does not grow steadily with K: BC's matched budget
-buys more whole demonstrations of the one per-cycle skill as K grows. So the default stays ``repeat``
-without respawn (K = 4: 95% against 70%).
+buys more whole demonstrations of the one per-cycle skill as K grows. Hence the fixed budget below.
 
 **A fixed label budget** (``max_labels``): every horizon gets the same ``L`` expert labels, as in Ross &
-Bagnell's comparison (the same data, a longer horizon). BC then holds about the same number of
-pick-and-place cycles at every K (``L`` over 59-43 frames per cycle) and its per-cycle success ``p``
+Bagnell's comparison (the same data, a longer horizon). BC's budget no longer grows with K (83,
+63, 45, 35 demonstrations at K = 1-4: 83-140 pick-and-place cycles) and its per-cycle success ``p``
 compounds as ``p^K``, while HG-DAgger spends its ``L`` on the states its own learner reaches.
 ``warm_start`` (each round fine-tunes the previous learner for ``round_steps``) makes a round about
 4x cheaper. Pilots at K = 4 with ``respawn=1``, ``L`` = 6,000, warm start, 1,000 steps per round (BC:
@@ -77,7 +76,7 @@ At these defaults (K = 1..4, 100 eval episodes each): HG-DAgger 94, 98, 94, 86% 
 (4,930-6,011 labels; BC on 83, 63, 45, 35 demonstrations): the gap grows from 7 to 44 points, the
 fitted failure growth 0.022 against 0.19 per 100 steps. DART with its estimated noise 85, 80, 84, 84%;
 fixed-noise DART 77, 71, 49, 47%; BC + chunking 61, 26, 11, 0%; plain DAgger 29, 10, 32, 23%;
-SafeDAgger 70 (K = 1), 40 (K = 3), 73% (K = 4); AggreVaTe 41 (K = 3), 53% (K = 4); perturbation 1, 1, 3, 4%.
+SafeDAgger 70, 36, 40, 73%; AggreVaTe 41 (K = 3), 53% (K = 4); perturbation 1, 1, 3, 4%.
 
 Why the mixing schedule of plain DAgger (``beta = "linear:4"``): with ``indicator`` (the learner drives
 from round 1) the early learners, trained on a few demonstrations, stall in every rollout (a fixed

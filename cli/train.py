@@ -347,7 +347,8 @@ def bench_compounding(
     config = CompoundingConfig(out=str(out), task=task, option=option, values=ints("--values", values), task_options=fixed,
                                methods=tuple(m.strip() for m in methods.split(",") if m.strip()), seed=seed, demos=demos,
                                pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta, gate=gate,
-                               steps=steps, round_steps=round_steps, warm_start=warm_start, max_labels=max_labels or None, hidden=ints("--hidden", hidden), batch_size=batch_size,
+                               steps=steps, round_steps=round_steps, warm_start=warm_start, max_labels=max_labels or None,
+                               hidden=ints("--hidden", hidden), batch_size=batch_size,
                                chunk=chunk, noise=noise, val_fraction=val_fraction, candidates=candidates, sigma=sigma,
                                eval_episodes=eval_episodes,
                                workers=workers)
