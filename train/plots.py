@@ -59,14 +59,15 @@ def plot_success_vs(
     x_key: str = "horizon",
     x_label: str = "task horizon (control steps)",
     title: str = "",
-    annotate: str | None = None,
+    top_ticks: Mapping[float, str] | None = None,
 ) -> Path:
     """Success rate (with 95% interval bars) against ``x_key`` for several methods.
 
-    ``lines``: method -> ``[{x_key, "success_rate", "ci95", annotate?}, ...]``.
+    ``lines``: method -> ``[{x_key, "success_rate", "ci95"}, ...]``; ``top_ticks`` (x -> label) names
+    the x values once, on a top axis (e.g. the task option that sets the horizon).
     """
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(8.4, 4.2))
     for name, points in lines.items():
         pts = sorted(points, key=lambda p: p[x_key])
         if not pts:
@@ -75,15 +76,15 @@ def plot_success_vs(
         y = np.array([p["success_rate"] for p in pts], dtype=float)
         err = np.clip(np.array([[y[i] - p["ci95"][0], p["ci95"][1] - y[i]] for i, p in enumerate(pts)]).T, 0, None)
         ax.errorbar(x, y, yerr=err, marker="o", capsize=3, lw=1.6, label=name)
-        if annotate:
-            for xi, yi, p in zip(x, y, pts):
-                if annotate in p:
-                    ax.annotate(str(p[annotate]), (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7)
     ax.set_ylim(-0.02, 1.05)
+    if top_ticks:
+        top = ax.secondary_xaxis("top")
+        top.set_xticks(list(top_ticks), labels=list(top_ticks.values()))
     ax.set_xlabel(x_label)
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.grid(alpha=0.3)
-    ax.legend()
+    # Outside the axes: with many methods any corner inside covers someone's points.
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     if title:
         ax.set_title(title)
     fig.tight_layout()
