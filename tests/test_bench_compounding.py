@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -11,7 +12,11 @@ import torch
 
 from demo.bench.compounding import METHODS, CompoundingConfig, fit_growth, format_table, meets_target, run
 from demo.cli.main import main
+from demo.errors import DemoError
+from demo.sim import make_env
+from demo.sim.rollout import run_expert
 from demo.store import EpisodeStore
+from demo.train.checkpoint import load_bundle, read_run
 
 torch.set_num_threads(1)
 
@@ -43,8 +48,6 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
     assert "takeovers" in row["safedagger"]["rounds"][1] and "noise_std" in row["dart"]["rounds"][1]
     assert Path(result["png"]).stat().st_size > 5000
     # Every method executes the gripper as open/closed (the store's action "gripper" entry).
-    from demo.train.checkpoint import load_bundle
-
     for method in METHODS:
         assert load_bundle(row[method]["run"]).execution.binary == (7,)
     assert result["config"]["beta"] == "linear:4" and result["config"]["gate"] == "deviation:0.03"
@@ -59,12 +62,6 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
     assert again["rows"][0]["bc"] == json.loads(json.dumps(row["bc"])) and again["seconds"] < result["seconds"]
     assert set(again["fits"]) == {"bc", "hg_dagger", "safedagger"}
     # ... but not with a different configuration: that needs another --out.
-    import dataclasses
-
-    import pytest
-
-    from demo.errors import DemoError
-
     with pytest.raises(DemoError, match="other hidden"):
         run(dataclasses.replace(config, hidden=(32,)), log=lambda text: None)
 
@@ -78,13 +75,7 @@ def test_a_fixed_label_budget_stops_hg_dagger_and_is_part_of_the_cache(tmp_path:
     # Stopped by the budget (before its last round), by the end of the episode that reached it.
     assert len(totals) < 1 + config.rounds and totals[-2] < 250 <= totals[-1] == row["expert_labels"]
     assert row["bc"]["expert_labels"] >= row["expert_labels"]
-    from demo.train.checkpoint import read_run
-
     assert read_run(row["hg_dagger"]["run"])["dagger"]["warm_start"] is True
-    import dataclasses
-
-    from demo.errors import DemoError
-
     with pytest.raises(DemoError, match="other max_labels"):
         run(dataclasses.replace(config, max_labels=300), log=lambda text: None)
     # A directory made before a key existed ran without it: no warm start, no fixed budget.
@@ -120,9 +111,6 @@ def test_target_needs_four_horizons_and_a_growing_gap() -> None:
 
 def test_stack_repeat_is_the_horizon_the_bench_climbs() -> None:
     """stack --repeat K: the same one-block stack built K times, the pad moving after each; K = 1 is stack."""
-    from demo.sim import make_env
-    from demo.sim.rollout import run_expert
-
     plain, once = make_env("stack", blocks=1), make_env("stack", blocks=1, repeat=1)
     np.testing.assert_array_equal(plain.reset(5)["obs.object_pos"], once.reset(5)["obs.object_pos"])
     np.testing.assert_array_equal(plain.get_state(), once.get_state())
@@ -142,10 +130,6 @@ def test_stack_repeat_is_the_horizon_the_bench_climbs() -> None:
 def test_stack_respawn_puts_the_cube_back_on_the_table_each_cycle() -> None:
     """respawn = 1: after each finished stack but the last, the cube is put back on the table at a
     spot drawn at reset, away from both pads; the pad's spots are those of repeat alone."""
-    from demo.errors import DemoError
-    from demo.sim import make_env
-    from demo.sim.rollout import run_expert
-
     plain, respawning = make_env("stack", blocks=1, repeat=3), make_env("stack", blocks=1, repeat=3, respawn=1)
     plain.reset(2)
     respawning.reset(2)
