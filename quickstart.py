@@ -29,7 +29,7 @@ class QuickstartConfig:
     task: str = "pick"
     expert_episodes: int = 100
     poor_episodes: int = 20  # mixed in so that curation has something to find
-    steps: int | None = None  # BC gradient steps (None: BC's default, demo.train.config.for_policy)
+    steps: int | None = None  # BC gradient steps (None: BC's default, demo.training.config.for_policy)
     eval_episodes: int = 50
     workers: int = 2
     seed: int = 0
@@ -46,9 +46,9 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
     from demo.convert.check import round_trip
     from demo.convert.convert import ConvertOptions, convert_store
     from demo.curate.curate import curate
-    from demo.train.bc import train
-    from demo.train.config import for_policy
-    from demo.train.evaluate import EvalConfig, evaluate
+    from demo.imitation.bc import train
+    from demo.training.config import for_policy
+    from demo.evaluation.evaluate import EvalConfig, evaluate
 
     out = Path(config.out)
     if out.exists() and any(out.iterdir()) and not overwrite:

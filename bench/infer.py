@@ -12,7 +12,7 @@ reference rolled out through the fast path (the same function up to float roundi
 Latency does not depend on the weights' values, so without ``--run`` a freshly initialised network
 of the requested size is timed (observation/action sizes of the ``avoid`` task by default).
 
-One-step diffusion (:mod:`demo.train.distill`): every run also times the same network sampled in 1
+One-step diffusion (:mod:`demo.imitation.distill`): every run also times the same network sampled in 1
 DDIM step against DDIM in the teacher's steps (8 by default; a distilled run's ``distilled_from``),
 interleaved in a loop of their own, and reports the ratio of the medians (target >= 5x) and of the
 minima (what a quiet core gives: on a loaded machine the longer call is the likelier to be
@@ -21,7 +21,7 @@ student and ``--episodes``, the reference success is its teacher's (the run ``di
 names, at its own sampler), not DDPM-100 through the student's weights, which were only trained at
 the top timestep; the target is then the student within 5 points of the teacher.
 
-``--device`` (:func:`demo.train.device.resolve_device`, ``auto`` as ``demo eval``): the policy and its
+``--device`` (:func:`demo.policies.device.resolve_device`, ``auto`` as ``demo eval``): the policy and its
 observation on that device, the start noise drawn there; on CUDA each call is timed to the end of
 its kernels (a device synchronisation after it).
 """
@@ -37,10 +37,10 @@ import torch
 
 from demo.bench.common import machine
 from demo.errors import DemoError
-from demo.train.device import resolve_device
-from demo.train.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
-from demo.train.policy import PolicySpec
-from demo.train.unet1d import count_parameters
+from demo.policies.device import resolve_device
+from demo.policies.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
+from demo.policies.policy import PolicySpec
+from demo.policies.unet1d import count_parameters
 
 TARGET_MS = 15.0
 TARGET_SPEEDUP = 8.0
@@ -112,7 +112,7 @@ def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_d
                 device: torch.device = torch.device("cpu")) -> tuple[DiffusionPolicy, Any]:
     """The run's policy and bundle, or a fresh network and None, on ``device``."""
     if run:
-        from demo.train.checkpoint import load_bundle
+        from demo.policies.checkpoint import load_bundle
 
         bundle = load_bundle(run, device)
         if not isinstance(bundle.policy, DiffusionPolicy):
@@ -126,7 +126,7 @@ def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_d
 def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -> dict[str, Any]:
     """Success of the bundle's policy as configured now, on ``demo eval``'s episodes for ``seed``."""
     from demo.seeds import eval_seeds
-    from demo.train.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
+    from demo.evaluation.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
 
     task, options, robot = resolve_target(bundle, None, None, None)
     env = make_eval_env(bundle, task, options, robot)
@@ -295,7 +295,7 @@ def _teacher_bundle(run: str | None, distilled: dict[str, Any], device: torch.de
     """The teacher a student's ``distilled_from`` names (refused in one line where it is gone)."""
     from pathlib import Path
 
-    from demo.train.checkpoint import load_bundle
+    from demo.policies.checkpoint import load_bundle
 
     teacher = distilled.get("run")
     if not isinstance(teacher, str) or not Path(teacher).is_dir():

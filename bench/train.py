@@ -1,9 +1,9 @@
 """`demo bench train`: training throughput, data pipeline included, against the model's own compute.
 
 State (default). Figure: samples/s of BC training exactly as ``demo train --algo bc`` runs it:
-windows sampled from the store's frames in memory (:class:`demo.train.data.Windows`: WindowSampler
+windows sampled from the store's frames in memory (:class:`demo.training.data.Windows`: WindowSampler
 gather, relative actions, normalisation, tensors) and one optimiser step
-(:func:`demo.train.optim.train_step`: forward, MSE, backward, gradient clipping, fused AdamW).
+(:func:`demo.training.optim.train_step`: forward, MSE, backward, gradient clipping, fused AdamW).
 Reference, same run, same model: the bare forward + backward (no optimiser step) on batches that
 are already tensors in memory. Target: ratio >= 0.8, i.e. data pipeline and optimiser together
 cost at most a quarter of the model's own work. Default data: a synthetic 200k-frame store
@@ -44,12 +44,12 @@ from demo.bench.common import machine, rate
 from demo.bench.load import build_store
 from demo.errors import DemoError
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
-from demo.train.config import TrainConfig, for_policy
-from demo.train.data import STATE, Batch, TrainingData, Windows, batch_to, prepare
-from demo.train.device import autocast, resolve_device
-from demo.train.optim import Learner, make_learner, train_step
-from demo.train.policy import build_policy
-from demo.train.visuomotor import VisuomotorPolicy, encoder_config
+from demo.training.config import TrainConfig, for_policy
+from demo.training.data import STATE, Batch, TrainingData, Windows, batch_to, prepare
+from demo.policies.device import autocast, resolve_device
+from demo.training.optim import Learner, make_learner, train_step
+from demo.policies.policy import build_policy
+from demo.policies.visuomotor import VisuomotorPolicy, encoder_config
 
 TARGET_RATIO = 0.8
 TARGET_RATIO_IMAGES = 0.7

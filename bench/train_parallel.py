@@ -30,8 +30,8 @@ from typing import Any
 from demo.bench.common import machine
 from demo.bench.load import build_store
 from demo.errors import DemoError
-from demo.train.checkpoint import METRICS_FILE
-from demo.train.config import TrainConfig
+from demo.policies.checkpoint import METRICS_FILE
+from demo.training.config import TrainConfig
 
 EPISODE_LENGTH = 200  # frames per synthetic episode
 LOG_EVERY = TrainConfig.log_every  # optimiser steps per throughput interval (the trainer's logging)

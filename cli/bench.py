@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import typer
 
-from demo.bench.crossrobot import CrossRobotConfig
+from demo.experiments.crossrobot import CrossRobotConfig
 from demo.bench.faults import FaultsConfig
-from demo.bench.policies import POLICIES
+from demo.experiments.policies import POLICIES
 from demo.cli.main import app
 from demo.cli.options import address_option, executor_option, json_option
 
@@ -175,7 +175,7 @@ def bench_crossrobot(
     workers: int = typer.Option(_X.workers, help="Processes for collection and evaluation."),
 ) -> None:
     """One policy across robots: BC on two arms' ee7 demos vs per-arm and joint-space policies, success on each arm."""
-    from demo.bench.crossrobot import run
+    from demo.experiments.crossrobot import run
     from demo.cli.output import report_console, table, write_json
     from demo.cli.progress import bars
     from demo.progress import Tick
@@ -226,7 +226,7 @@ def bench_policies(
     threads: int = typer.Option(1, help="Torch threads of each training."),
 ) -> None:
     """Every policy class on the same data and seeds: success, both sides (avoid), training time, latency; JSON + PNG."""
-    from demo.bench.policies import PoliciesConfig, format_rows, run
+    from demo.experiments.policies import PoliciesConfig, format_rows, run
     from demo.cli.output import report_console, table, write_json
     from demo.cli.progress import bars
 
@@ -263,7 +263,7 @@ def bench_peer_gail(
 ) -> None:
     """The imitation library's GAIL (stable-baselines3 PPO) on demo/<Task>-v0: success on demo eval's episodes, steps,
     time. Runs where imitation is installed (its own venv: README)."""
-    from demo.bench.peer_gail import PeerGailConfig, run, summary_rows
+    from demo.experiments.peer_gail import PeerGailConfig, run, summary_rows
     from demo.cli.output import kv_table, report_console, write_json
     from demo.cli.progress import bars
 

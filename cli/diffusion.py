@@ -86,7 +86,7 @@ def bench_multimodal(
     json_out: str = json_option(default="-"),
 ) -> None:
     """avoid: EE paths of two policies from the same start states, which side they pass, PNG + JSON."""
-    from demo.bench.multimodal import run as run_modes
+    from demo.experiments.multimodal import run as run_modes
     from demo.cli.output import report_console, table, write_json
 
     r = run_modes(diffusion, reference, starts=starts, samples=samples, seed=seed, png=png, execute=execute,

@@ -12,8 +12,8 @@ from demo.cli.options import json_option, overwrite_option, robot_option
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
-from demo.train.adversarial import AdversarialConfig
-from demo.train.ppo import PPOConfig
+from demo.rl.adversarial import AdversarialConfig
+from demo.rl.ppo import PPOConfig
 
 irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
                       no_args_is_help=True)
@@ -31,7 +31,7 @@ def train(
                              show_default=False),
     algo: str = typer.Option("ppo", help=f"Algorithm: {', '.join(ALGOS)}."),
     task: str = typer.Option(None, help="Task.", show_default="the store's; ppo: reach"),
-    reward: str = typer.Option("task", metavar="task|RUN", help="ppo: the dense task reward (demo.train.rewards), or the "
+    reward: str = typer.Option("task", metavar="task|RUN", help="ppo: the dense task reward (demo.rl.rewards), or the "
                                "reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
     robot: str = robot_option(),
     action: str = typer.Option(_P.action, metavar="|".join(("ee7", "joint_pos")), help="The policy's actions: ee7 deltas "
@@ -77,11 +77,11 @@ def train(
     common = dict(overwrite=overwrite, command=invocation())
     with bars() as progress:
         if algo == "ppo":
-            from demo.train.ppo import train as run
+            from demo.rl.ppo import train as run
 
             summary = run(rl, progress=progress, **common)
         elif algo in ("gail", "airl"):
-            from demo.train.adversarial import train as run_adversarial
+            from demo.rl.adversarial import train as run_adversarial
 
             summary = run_adversarial(AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs,
                                                         grad_penalty=grad_penalty, init_bc=init_bc, gail_reward=gail_reward,
@@ -89,7 +89,7 @@ def train(
                                                         disc_obs_keys=_keys(disc_obs_keys)),
                                       progress=progress, **common)
         else:
-            from demo.train.irl_linear import LinearIRLConfig, train as run_linear
+            from demo.rl.irl_linear import LinearIRLConfig, train as run_linear
 
             summary = run_linear(LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner),
                                  progress=progress, **common)

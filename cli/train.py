@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from demo.bench.compounding import CompoundingConfig
+from demo.experiments.compounding import CompoundingConfig
 from demo.cli.bench import bench_app
 from demo.cli.main import app, invocation
 from demo.cli.options import (address_option, device_option, executor_option, json_option, overwrite_option,
@@ -18,7 +18,7 @@ from demo.cli.progress import bars
 from demo.progress import Tick
 from demo.errors import DemoError
 
-FAMILY = ("dagger", "safedagger", "aggrevate", "dart", "perturb")  # rollouts + aggregation (demo.train.dagger.make_family)
+FAMILY = ("dagger", "safedagger", "aggrevate", "dart", "perturb")  # rollouts + aggregation (demo.imitation.dagger.make_family)
 ALGOS = ("bc", *FAMILY, "diffusion", "act")
 
 
@@ -33,8 +33,8 @@ def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str,
 
 
 def _defaults(key: str) -> str:
-    """A flag's default per algorithm, from the library's table (demo.train.config)."""
-    from demo.train.config import DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
+    """A flag's default per algorithm, from the library's table (demo.training.config)."""
+    from demo.training.config import DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
 
     values = {name: policy_defaults(name)[key] for name in POLICY_DEFAULTS}
     values["dagger"] = {**policy_defaults("bc"), **DAGGER_DEFAULTS}[key]
@@ -118,9 +118,9 @@ def train(
 ) -> None:
     """Train a policy on a store: bc (MLP, action chunks, --head), dagger and its family (safedagger, aggrevate, dart,
     perturb: with the task's expert), diffusion, act (ACT)."""
-    from demo.train import distributed
-    from demo.train.bc import train as train_bc
-    from demo.train.config import for_policy
+    from demo.training import distributed
+    from demo.imitation.bc import train as train_bc
+    from demo.training.config import for_policy
 
     if algo not in ALGOS:
         raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
@@ -138,7 +138,7 @@ def train(
     if algo in FAMILY and max(nproc, distributed.env_world_size()) > 1:
         raise DemoError("--nproc", f"{algo} trains in one process (its rollouts and store are not data-parallel)")
     if nproc > 1 and distributed.env_world_size() == 1:  # not yet under torchrun: become its N processes
-        from demo.train.trainer import check_run_directory
+        from demo.training.trainer import check_run_directory
 
         check_run_directory(out, resume, overwrite)  # refused here in one line, not once per process
         raise typer.Exit(distributed.launch(_without_nproc(shlex.split(invocation())[1:]), nproc))
@@ -155,7 +155,7 @@ def train(
     )
     if algo in FAMILY:
         from demo.executor import ExecutorConfig
-        from demo.train.dagger import DaggerConfig, learner_config, make_family, train_dagger
+        from demo.imitation.dagger import DaggerConfig, learner_config, make_family, train_dagger
 
         dconfig = DaggerConfig(train=learner_config(**given), task=task, rounds=rounds, episodes_per_round=episodes_per_round,
                                round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate,
@@ -166,8 +166,8 @@ def train(
             summary = train_dagger(dconfig, executor=ExecutorConfig(executor, workers, address), progress=progress,
                                    resume=resume, overwrite=overwrite, command=invocation(), family=family)
     elif distil is not None:
-        from demo.train.config import TrainConfig
-        from demo.train.distill import train as train_distil
+        from demo.training.config import TrainConfig
+        from demo.imitation.distill import train as train_distil
 
         with bars() as progress:  # the student's settings are resolved from the teacher's
             summary = train_distil(TrainConfig(algo=algo, **given), distil, progress=progress, resume=resume,
@@ -335,7 +335,7 @@ def bench_compounding(
     workers: int = typer.Option(_C.workers, help="Processes for collection, rollouts and evaluation."),
 ) -> None:
     """Compounding errors: success vs horizon for BC, BC + chunking, DART and the DAgger family at equal expert labels."""
-    from demo.bench.compounding import format_table, run
+    from demo.experiments.compounding import format_table, run
 
     def ints(flag: str, text: str) -> tuple[int, ...]:
         try:

@@ -11,7 +11,7 @@ control step; the adapter turns it into the environment's joint position targets
   become joint targets by IK warm-started from the measured joints (:class:`demo.convert.ik.IKSolver`),
   one converged solve per step.
 
-``make_adapter(spec, env)`` is what :mod:`demo.train.actions` looks for.
+``make_adapter(spec, env)`` is what :mod:`demo.policies.actions` looks for.
 """
 
 from __future__ import annotations

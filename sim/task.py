@@ -38,9 +38,9 @@ class Task:
     avoid_geoms: ClassVar[tuple[str, ...]] = ()
     # Uniform noise (rad) added to the home arm configuration at reset.
     arm_noise: ClassVar[float] = 0.03
-    # The goal relative to what the arm controls, as observation keys (demo.train.observation.ObsSpec,
+    # The goal relative to what the arm controls, as observation keys (demo.policies.observation.ObsSpec,
     # differences allowed): what an adversarial imitation discriminator reads by default
-    # (demo.train.adversarial). No per-episode constant it could memorise to tell the demonstrations'
+    # (demo.rl.adversarial). No per-episode constant it could memorise to tell the demonstrations'
     # few goals from the policy's new ones, nothing of the arm's redundant posture. Empty: the policy's.
     relative_goal_keys: ClassVar[tuple[str, ...]] = ()
 

@@ -59,7 +59,7 @@ def synthetic_store():
 @pytest.fixture(scope="session")
 def tiny_bc_config():
     """``make(data, out, **changes) -> TrainConfig``: a seconds-long single-step BC run of a small MLP."""
-    from demo.train.config import TrainConfig
+    from demo.training.config import TrainConfig
 
     def make(data: Path, out: Path, **changes) -> TrainConfig:
         base = dict(data=str(data), out=str(out), steps=300, batch_size=64, lr=3e-3, warmup_steps=20, chunk=1,

@@ -1,0 +1,432 @@
+"""Policy evaluation by rollouts in the simulator: success rate with a Wilson interval, lengths, failures.
+
+Episode ``i`` of ``demo eval --seed S`` starts from ``env.reset(eval_seeds(S)[i])``
+(:mod:`demo.seeds`: a seed stream disjoint from the one demonstrations are collected with);
+the seeds used are checked against the seeds of the run's training data and the overlap reported.
+Each episode runs :func:`demo.sim.rollout.rollout` (the loop collection uses, and its ending rule):
+it ends at the task horizon, or once success has held for 0.5 s. Outcomes:
+
+- ``success``: the success predicate holds at the end;
+- ``timeout``: it never held before the horizon;
+- ``lost``: it held at some point but not at the end (e.g. a lifted cube dropped);
+- the task's own reason where it has failed for good (``Task.failure``: avoid's ``collision``);
+- ``error``: the policy produced a non-finite action or the simulation failed.
+
+Robots: a policy evaluates on a robot it was trained on (the run's first by default; ``--robot``
+names another of a union's robots, or a robot config TOML). A robot it was not trained on is
+refused unless the policy acts in end-effector space (``ee7``, ``ee_delta``, ``ee_abs``: poses in
+the robot's base frame, which the arm's own IK turns into its joint targets) and reads observations
+that robot reports in the same shapes; the result then says the robot is new to the policy.
+Joint-space actions are one arm's joint targets and never transfer.
+
+The flywheel (``demo eval --record STORE``): every rollout is appended to ``STORE`` as an episode
+(created with the evaluation environment's features, task and robot if absent, else checked to
+record the same), source ``policy``, with the columns ``run``, ``success`` and ``outcome``; this
+process alone writes, in episode order, so the store's bytes do not depend on ``--workers`` or
+``--executor``. ``demo curate``, then ``demo train`` (which keeps the successful episodes) turn a
+deployed policy's own successes into training data. An ``error`` episode is not recorded (its last
+action was not finite).
+
+Evaluation is deterministic for a seed, whatever ``--workers`` and ``--executor`` (worker processes
+or Ray actors, :mod:`demo.executor`): every episode's state depends only
+on its seed, and torch runs single-threaded here (a small network at batch 1 gains nothing from
+threads, and thread counts could change float summation order).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from contextlib import ExitStack
+from collections.abc import Iterator, Sequence
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.executor import ExecutorConfig, ordered_map
+from demo.progress import Progress, Tick, or_silent
+from demo.seeds import EVAL_OFFSET, eval_seeds
+from demo.sim.rollout import StepCommand, rollout
+from demo.policies.actions import make_action_adapter
+from demo.policies.actor import ExecConfig, PolicyActor
+from demo.policies.checkpoint import PolicyBundle, load_bundle, robot_home, trained_robots
+from demo.policies.device import resolve_device
+
+Z95 = 1.959963984540054
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """95% Wilson score interval of a binomial proportion (sensible at 0% and 100%, unlike Wald)."""
+    if n <= 0:
+        return (0.0, 1.0)
+    if successes == 0:
+        return (0.0, min(1.0, z * z / (n + z * z)))
+    if successes == n:
+        return (max(0.0, n / (n + z * z)), 1.0)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+@dataclass
+class EpisodeOutcome:
+    index: int
+    seed: int
+    success: bool
+    length: int  # control steps
+    first_success_step: int | None
+    outcome: str  # success | timeout | lost | error | the task's failure (e.g. collision)
+    error: str = ""
+    states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
+    data: dict[str, np.ndarray] | None = None  # every recorded frame, when the rollout is kept (--record)
+
+    def to_json(self) -> dict[str, Any]:
+        d = {
+            "index": self.index,
+            "seed": self.seed,
+            "success": self.success,
+            "length": self.length,
+            "first_success_step": self.first_success_step,
+            "outcome": self.outcome,
+        }
+        if self.error:
+            d["error"] = self.error
+        return d
+
+
+# ---------------------------------------------------------------------------------- environment
+def resolve_target(
+    bundle: PolicyBundle, task: str | None, task_options: dict[str, Any] | None, robot: str | None
+) -> tuple[str, dict[str, Any], Any]:
+    """The task, task options and robot (a ``RobotConfig``) to evaluate on; refuses ones the policy was
+    not trained for. ``robot`` (``--robot``): the name of a robot the run was trained on, or a robot
+    config TOML; else the run's first robot, from the files the run (or its store's recorded source) carries."""
+    where = str(bundle.path or "run")
+    trained_task = bundle.task.get("name")
+    trained_options = dict(bundle.task.get("options") or {})
+    task = task or trained_task
+    if not task:
+        raise DemoError(where, "records no task; pass --task")
+    if trained_task and task != trained_task:
+        raise DemoError(where, f"was trained on task {trained_task!r}; it cannot be evaluated on {task!r}")
+    options = trained_options if task_options is None else {**trained_options, **task_options}
+    if trained_task and options != trained_options:
+        raise DemoError(
+            where, f"was trained on {task} with options {trained_options}; it cannot be evaluated with {options}"
+        )
+    return task, options, pick_robot(bundle, robot)
+
+
+def pick_robot(bundle: PolicyBundle, robot: str | None) -> Any:
+    """The ``RobotConfig`` to evaluate on: the run's first robot, another it was trained on by name,
+    or the robot config TOML ``robot`` (whether the policy may run on it is :func:`robot_transfer`'s call)."""
+    from demo.sim.robot_record import resolve_robot
+
+    records = trained_robots(bundle.run)
+    names = [r.get("name") for r in records]
+    if robot is None or (robot in names and not Path(robot).is_file()):
+        i = 0 if robot is None else names.index(robot)
+        return resolve_robot(records[i], None, robot_home(bundle.path, i))
+    if not Path(robot).exists():
+        raise DemoError(robot, f"no such robot config, nor a robot the run was trained on ({', '.join(map(str, names))})")
+    return resolve_robot(None, robot)
+
+
+def robot_transfer(bundle: PolicyBundle, robot: str) -> str | None:
+    """``None`` when the policy was trained on ``robot`` (a name), else the note saying it is new to the
+    policy, where its actions allow it (end-effector space); refuses a joint-space policy."""
+    trained = [r.get("name") for r in trained_robots(bundle.run) if r.get("name")]
+    if not trained or robot in trained:
+        return None
+    where, action = str(bundle.path or "run"), bundle.action
+    which = ", ".join(repr(n) for n in trained)
+    if action.frame == "joint":
+        raise DemoError(where, f"was trained on robot {which}; it cannot be evaluated on {robot!r}: its {action.name} "
+                               "actions are joint targets of the arm it was trained on (a policy trained on actions "
+                               "converted with `demo convert --to ee7` runs on other arms through their IK)")
+    return (f"robot {robot!r} is not among the robots the policy was trained on ({which}); its {action.name} actions "
+            "run through that arm's IK")
+
+
+def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: Any, cameras: Sequence[Any] = ()) -> Any:
+    """The task's environment for ``bundle`` on ``robot`` (a ``RobotConfig``), rendering the cameras its
+    policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`)."""
+    from demo.sim import make_env
+
+    env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
+    try:
+        new = robot_transfer(bundle, env.robot.name)
+        try:
+            bundle.obs_spec.check_against(env.features, f"{task} environment (robot {env.robot.name})")
+        except DemoError as exc:
+            if new is None:
+                raise
+            raise DemoError(exc.where, f"{exc.problem} (a policy for several arms reads observations every arm "
+                                       "reports, e.g. demo train --obs-keys obs.ee_pos,obs.ee_quat,obs.gripper,...)") from None
+    except DemoError:
+        env.close()
+        raise
+    return env
+
+
+def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = None) -> PolicyActor:
+    adapter = make_action_adapter(bundle.action, env, str(bundle.path or "run"))
+    return bundle.actor(execution, adapter)
+
+
+# ---------------------------------------------------------------------------------- one episode
+def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool = False, max_steps: int | None = None,
+                keep: bool = False) -> EpisodeOutcome:
+    """Reset to ``seed`` and let the policy act until success has held or the horizon; ``record``: keep
+    the states (videos), ``keep``: every frame (:attr:`EpisodeOutcome.data`)."""
+    env.reset(seed)
+    actor.reset(seed, env)
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        action = actor.act(frame)
+        if not np.isfinite(action).all():
+            raise FloatingPointError(f"non-finite action at step {t}")
+        return StepCommand(executed=action, label=action)
+
+    try:
+        episode = rollout(env, seed, act, reset=False, record=record or keep, max_steps=max_steps)
+    except FloatingPointError as exc:
+        return EpisodeOutcome(index, seed, False, env.steps, None, "error", str(exc))
+    if diverged(env):
+        return EpisodeOutcome(index, seed, False, episode.length, None, "error", "simulation became unstable")
+    if episode.success:
+        outcome = "success"
+    elif episode.failure:
+        outcome = episode.failure
+    elif episode.first_success_step is not None:
+        outcome = "lost"
+    else:
+        outcome = "timeout"
+    states = episode.data.get("sim.state") if record else None
+    return EpisodeOutcome(index, seed, episode.success, episode.length, episode.first_success_step, outcome, "", states,
+                          episode.data if keep else None)
+
+
+def diverged(env: Any) -> bool:
+    """MuJoCo resets the state itself on a bad acceleration and only counts a warning."""
+    import mujoco
+
+    data = getattr(env, "data", None)
+    if data is None:
+        return False
+    return int(data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number) > 0 or not np.isfinite(data.qpos).all()
+
+
+def iter_episodes_inline(bundle: PolicyBundle, env: Any, jobs: Sequence[tuple[int, int, bool, bool]],
+                         execution: ExecConfig | None = None) -> Iterator[EpisodeOutcome]:
+    """Roll the policy out in this process, one ``(index, seed, record, keep)`` job after the other."""
+    actor = make_actor(bundle, env, execution)
+    with single_thread():
+        for index, seed, record, keep in jobs:
+            yield run_episode(env, actor, index, int(seed), record=record, keep=keep)
+
+
+def run_episodes_inline(bundle: PolicyBundle, env: Any, seeds: Sequence[int],
+                        execution: ExecConfig | None = None) -> list[EpisodeOutcome]:
+    """Evaluate an in-memory policy in this process (training-time evaluation, benchmarks)."""
+    return list(iter_episodes_inline(bundle, env, [(i, int(s), False, False) for i, s in enumerate(seeds)], execution))
+
+
+class single_thread:
+    """Context manager: torch on one thread (deterministic and fastest for batch-1 inference)."""
+
+    def __enter__(self) -> None:
+        self.threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+
+    def __exit__(self, *exc: object) -> None:
+        torch.set_num_threads(self.threads)
+
+
+# ---------------------------------------------------------------------------------- workers (demo.executor)
+_worker: dict[str, Any] = {}
+
+
+def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any],
+                 device: str) -> None:
+    torch.set_num_threads(1)
+    bundle = load_bundle(run, device)
+    env = make_eval_env(bundle, task, options, robot)
+    _worker["env"] = env
+    _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
+
+
+def _worker_run(job: tuple[int, int, bool, bool]) -> EpisodeOutcome:
+    index, seed, record, keep = job
+    return run_episode(_worker["env"], _worker["actor"], index, seed, record=record, keep=keep)
+
+
+# ---------------------------------------------------------------------------------- the command
+@dataclass
+class EvalConfig:
+    run: str
+    task: str | None = None  # default: the task the policy was trained on
+    task_options: dict[str, Any] | None = None  # default: the trained task's options
+    robot: str | None = None  # robot config TOML; default: the trained robot
+    episodes: int = 100
+    seed: int = 0
+    workers: int = 1  # 1: in this process (process executor)
+    executor: str = "process"  # process | ray (demo.executor)
+    address: str | None = None  # a Ray cluster (None: a local Ray)
+    execute: int | None = None  # override the run's chunk execution
+    ensemble: float | None = None  # override the ensembling decay (< 0 turns it off)
+    candidates: int | None = None  # override the chunks drawn per query (coherent sampling, demo.policies.actor)
+    video: str | None = None  # .gif (or .mp4 where an encoder is installed)
+    video_episodes: int = 4
+    video_size: int = 128
+    device: str = "auto"  # where the policy runs (demo.policies.device); the simulation is always on the CPU
+    record: str | None = None  # a store every rollout is appended to (created if absent): the flywheel
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None,
+                  candidates: int | None = None) -> ExecConfig:
+    execution = dataclasses.replace(bundle.execution)
+    if execute is not None:
+        execution.execute = execute
+    if ensemble is not None:
+        execution.ensemble = None if ensemble < 0 else ensemble
+    if candidates is not None:
+        execution.candidates = candidates
+    try:
+        execution.check(bundle.policy.spec.horizon)
+    except ValueError as exc:
+        raise DemoError("--execute", str(exc)) from None
+    return execution
+
+
+def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, Any]:
+    """Evaluate the run at ``config.run``; returns the JSON-able result (see :func:`summarize`).
+
+    ``progress`` gets a tick per finished episode (stage ``eval RUN``, field ``success`` so far)."""
+    if config.episodes < 1:
+        raise DemoError("--episodes", "must be at least 1")
+    if config.workers < 1:
+        raise DemoError("--workers", "must be at least 1")
+    executor = ExecutorConfig(config.executor, config.workers, config.address)
+    executor.check()
+    run = Path(config.run)
+    device = resolve_device(config.device)
+    executor = executor.on_device(device)
+    bundle = load_bundle(run, device)
+    task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
+    execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
+    seeds = eval_seeds(config.seed, config.episodes)
+    n_video = min(config.video_episodes, config.episodes) if config.video else 0
+    jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]
+    start = time.perf_counter()
+    outcomes: list[EpisodeOutcome] = []
+    tell = or_silent(progress)
+    store: Any = None  # --record: the store each rollout is appended to, opened once the environment validates
+
+    def done(outcome: EpisodeOutcome) -> None:
+        if store is not None and outcome.data is not None:  # this process alone writes, in episode order
+            store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy",
+                                 operator="policy", run=str(run), outcome=outcome.outcome,
+                                 first_success_step=-1 if outcome.first_success_step is None else outcome.first_success_step)
+        outcome.data = None
+        outcomes.append(outcome)
+        successes = sum(o.success for o in outcomes)
+        tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
+
+    env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
+    robot_name, transfer = env.robot.name, robot_transfer(bundle, env.robot.name)
+    stack = ExitStack()  # an exception leaves the recorded episodes committed (a store created here and left empty goes)
+    try:
+        if config.record is not None:
+            store = stack.enter_context(open_record(config.record, env, task, options, run, config.seed))
+        if executor.kind == "process" and executor.workers == 1:
+            for outcome in iter_episodes_inline(bundle, env, jobs, execution):
+                done(outcome)
+        else:
+            init_args = (str(run), task, options, robot, execution.to_json(), str(device))
+            for ready in ordered_map(_worker_init, init_args, _worker_run, jobs, executor,
+                                     label=lambda job: f"evaluation episode {job[0]}"):
+                for outcome in ready:
+                    done(outcome)
+    except BaseException as exc:
+        stack.__exit__(type(exc), exc, exc.__traceback__)
+        raise
+    finally:
+        env.close()
+    stack.close()
+    seconds = time.perf_counter() - start
+    result = summarize(outcomes)
+    training_seeds = set(int(s) for s in (bundle.run.get("data") or {}).get("seeds", []))
+    result.update(
+        {
+            "run": str(run),
+            "algo": bundle.algo,
+            "task": task,
+            "task_options": options,
+            "robot": robot_name,
+            "robot_trained_on": transfer is None,
+            **({"robot_note": transfer} if transfer else {}),
+            "seed": config.seed,
+            "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.seeds)",
+            "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
+            "execution": execution.to_json(),
+            "workers": config.workers,
+            "executor": config.executor,
+            "device": str(device),
+            "seconds": seconds,
+            "steps_per_s": sum(o.length for o in outcomes) / max(seconds, 1e-9),
+            **config.extra,
+        }
+    )
+    if store is not None:
+        result["record"] = {"store": str(config.record), "episodes": sum(o.outcome != "error" for o in outcomes)}
+    if config.video:
+        from demo.evaluation.video import write_video
+
+        recorded = [o for o in outcomes if o.states is not None]
+        result["video"] = write_video(
+            config.video, recorded, task, options, robot, fps=bundle.run.get("fps") or 20.0, size=config.video_size
+        )
+    result["episodes_detail"] = [o.to_json() for o in outcomes]
+    return result
+
+
+def open_record(path: str, env: Any, task: str, options: dict[str, Any], run: Path, seed: int) -> Any:
+    """The store ``--record`` appends rollouts to (an :class:`EpisodeStore`, writer lock held): created
+    with ``env``'s features, task and robot, or opened to append after checking it records the same
+    (:func:`demo.collect.scripted.open_output`; a mismatch is refused before any rollout)."""
+    from demo.collect.scripted import CollectConfig, open_output, store_meta
+    from demo.policies.checkpoint import now
+
+    meta = store_meta(CollectConfig(task=task, task_options=dict(options)), env)
+    meta.provenance = [{"op": "eval", "run": str(run), "seed": seed, "time": now()}]
+    return open_output(path, meta, append=True, overwrite=False)
+
+
+def summarize(outcomes: Sequence[EpisodeOutcome]) -> dict[str, Any]:
+    n = len(outcomes)
+    k = sum(o.success for o in outcomes)
+    lo, hi = wilson_interval(k, n)
+    lengths = np.array([o.length for o in outcomes], dtype=float)
+    ok_lengths = np.array([o.length for o in outcomes if o.success], dtype=float)
+    failures: dict[str, int] = {}
+    for o in outcomes:
+        if not o.success:
+            failures[o.outcome] = failures.get(o.outcome, 0) + 1
+    return {
+        "episodes": n,
+        "successes": k,
+        "success_rate": k / n if n else 0.0,
+        "ci95": [lo, hi],
+        "mean_length": float(lengths.mean()) if n else None,
+        "mean_length_success": float(ok_lengths.mean()) if len(ok_lengths) else None,
+        "failures": failures,
+    }

@@ -1,0 +1,588 @@
+"""DAgger (Ross, Gordon & Bagnell 2011) and HG-DAgger (Kelly et al. 2019) with the tasks' experts.
+
+``demo train DATA --algo dagger --task T --rounds R --episodes-per-round K`` runs :func:`train_dagger`:
+
+0. DATA's episodes are copied into the run's own store ``RUN/data.zarr`` (DATA is never modified),
+   with a per-frame flag ``info.labelled``; round 0 trains behaviour cloning on them exactly as
+   ``--algo bc`` would (the shared :class:`demo.training.trainer.TrainingRun`).
+1. Round ``r = 1..R`` rolls out ``K`` episodes (seeds: :mod:`demo.seeds`) of the mixture
+   policy: at every step the expert is asked for its action on the visited state (the task experts
+   are state-feedback policies, so any state can be labelled), and the executed action is the
+   expert's with probability ``beta_r``, else the learner's. ``--beta``:
+
+   - ``indicator``: ``beta_r = 0`` (round 0 already was the expert's data; Ross et al.'s choice);
+   - ``linear:N``: ``beta_r = max(0, 1 - r / N)``;
+   - ``exp:P``: ``beta_r = P ** r``.
+
+   With ``--gate deviation:THRESH`` (HG-DAgger) the learner drives; the expert takes over when the
+   learner's arm joint targets differ from its own by more than THRESH rad (max over joints), or
+   its gripper command by more than :data:`GRIPPER_GATE`, and hands back once they agree within
+   THRESH/2 (hysteresis, as a person would); only the frames it was in control of become labels.
+   The rollouts run in this process, or with ``--workers N`` / ``--executor ray`` on workers
+   (:mod:`demo.executor`) that get the learner's weights in memory; each is a function of its seed
+   and the learner, so the episodes are the same wherever they ran.
+2. The episodes are appended to ``RUN/data.zarr`` (source ``dagger``, columns ``dagger_round``,
+   ``labels``, ``takeovers``), each visited state labelled by the expert (``action``), the executed
+   action in ``info.executed_action``, and per frame ``info.intervention``: 1 where the expert, not
+   the learner, was in control (HG-DAgger's takeovers, the beta draws that chose the expert; every
+   frame of a demonstration).
+3. A new learner is trained for ``round_steps`` on the aggregate (Ross et al.'s "train on D") with
+   round 0's normalisers, fitted on the demonstrations: an early learner's rollouts flail (joints to
+   their limits, the EE half a metre up), and min-max ranges refitted to them leave the states that
+   matter a fraction of the input range (on ``stack``, the joint ranges were 4x wider after the
+   rounds; inputs outside the demonstrations' ranges are clipped, see
+   :data:`demo.policies.normalizer.OBS_CLIP`).
+   ``refit_normalizers`` refits them to the aggregate instead; ``warm_start`` fine-tunes the
+   previous learner instead of training a new one (cheaper).
+
+Expert labels are counted: every frame of DATA's episodes that training used (validation
+included) plus every labelled frame of every round, so comparisons with BC can be made at equal
+label budgets (``metrics.json`` ``rounds[*].labels_total``); ``max_labels`` stops the rollouts once the
+count reaches it (at the end of the episode that reaches it). DART-style data (collected with
+``--noise``: noise on the executed action, clean labels) trains with ``--algo bc`` and the same
+label accounting.
+
+``--resume`` continues at the round where a run stopped (a round's rollouts already in the store
+are reused, not repeated).
+
+The family: SafeDAgger (:mod:`demo.imitation.safedagger`), AggreVaTe (:mod:`demo.imitation.aggrevate`), DART
+(:mod:`demo.imitation.dart`) and state perturbation (:mod:`demo.imitation.perturb`) run this same loop with
+their own rounds: a :class:`Family` says what round ``r`` rolls out (an episode function, run here or on
+the workers) and what its metrics add (:func:`make_family`; ``demo train --algo NAME``).
+
+The learner is BC's policy, single-step unless told otherwise (:data:`demo.training.config.DAGGER_DEFAULTS`).
+Everything else of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
+:class:`demo.training.trainer.TrainingRun`'s; this file holds only what is DAgger's own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, closing
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.executor import ExecutorConfig, ordered_map, session
+from demo.progress import Progress
+from demo.seeds import dagger_seeds
+from demo.sim.rollout import StepCommand, rollout
+from demo.store import EpisodeStore, FeatureSpec, StoreMeta
+from demo.store.location import absolute, store_path
+from demo.policies import checkpoint as ckpt
+from demo.policies.actor import ExecConfig
+from demo.training.config import DAGGER_DEFAULTS, TrainConfig, for_policy
+from demo.training.data import LABEL_KEY, TrainingData, prepare
+from demo.evaluation.evaluate import make_actor, single_thread
+from demo.training.optim import Learner
+from demo.training.trainer import TrainingRun
+
+DATA_DIR = "data.zarr"
+GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 closed) from the expert's is a deviation
+INTERVENTION_KEY = "info.intervention"  # per frame: 1 where the expert, not the learner, was in control
+
+
+@dataclass
+class DaggerConfig:
+    """DAgger's own hyperparameters; ``train`` holds round 0's (and the optimiser's)."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    task: str | None = None  # must be the data's task (default)
+    rounds: int = 5
+    episodes_per_round: int = 10
+    round_steps: int = 2000
+    warm_start: bool = False  # fine-tune the previous learner instead of training a new one each round
+    refit_normalizers: bool = False  # refit the normalisers to each round's aggregate (default: keep the demonstrations')
+    beta: str = "indicator"  # indicator | linear:N | exp:P
+    gate: str | None = None  # deviation:THRESH (rad) for HG-DAgger
+    max_labels: int | None = None  # stop rolling out once this many expert labels are spent (equal-budget comparisons)
+
+    def beta_at(self, r: int) -> float:
+        kind, _, arg = self.beta.partition(":")
+        try:
+            if kind == "indicator" and not arg:
+                return 0.0
+            if kind == "linear":
+                return max(0.0, 1.0 - r / float(arg))
+            if kind == "exp":
+                return float(arg) ** r
+        except ValueError:
+            pass
+        raise DemoError("--beta", f"{self.beta!r} is not indicator, linear:N or exp:P")
+
+    def gate_threshold(self) -> float | None:
+        if self.gate is None:
+            return None
+        kind, _, arg = self.gate.partition(":")
+        try:
+            value = float(arg)
+        except ValueError:
+            value = -1.0
+        if kind != "deviation" or value <= 0:
+            raise DemoError("--gate", f"{self.gate!r} is not deviation:THRESH with THRESH > 0 (rad)")
+        return value
+
+    def check(self) -> None:
+        self.train.check()
+        if self.rounds < 0:
+            raise DemoError("--rounds", f"must be >= 0, got {self.rounds}")
+        if self.episodes_per_round < 1:
+            raise DemoError("--episodes-per-round", f"must be at least 1, got {self.episodes_per_round}")
+        if self.round_steps < 1:
+            raise DemoError("--round-steps", f"must be at least 1, got {self.round_steps}")
+        self.beta_at(1)
+        self.gate_threshold()
+        if self.max_labels is not None and self.max_labels < 1:
+            raise DemoError("--max-labels", f"must be at least 1, got {self.max_labels}")
+        b = self.beta_at(1)
+        if not 0 <= b <= 1:
+            raise DemoError("--beta", f"beta must lie in [0, 1], got {b} in round 1")
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["train"] = self.train.to_json()
+        return d
+
+
+def learner_config(**given: Any) -> TrainConfig:
+    """The learner's resolved config: ``given`` values, then :data:`DAGGER_DEFAULTS`, then the policy's."""
+    given = {k: v for k, v in given.items() if v is not None}
+    return for_policy(given.pop("algo", "bc"), **{**DAGGER_DEFAULTS, **given})
+
+
+# ================================================================================== the aggregate store
+def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
+    """A copy of ``source`` with the per-frame ``info.labelled`` flag (all True for its episodes)."""
+    meta = StoreMeta.from_json(source.meta.to_json())
+    meta.features[LABEL_KEY] = FeatureSpec((), "uint8", "1 where the action is an expert label", "")
+    meta.features[INTERVENTION_KEY] = FeatureSpec((), "uint8", "1 where the expert, not the learner, was in control", "")
+    meta.provenance = [*meta.provenance, {"op": "dagger", "from": str(source.path), "time": ckpt.now()}]
+    out = EpisodeStore.create(path, meta, overwrite=True, robot_from=source.path)
+    skip = {"episode_index", "start", "length", "duration_s", "crc32"}
+    try:
+        batch = []
+        for index, data in source.iter_episodes():
+            info = {k: v for k, v in source.episode_info(index).items() if k not in skip}
+            info["dagger_round"] = 0
+            info["labels"] = len(data["action"])
+            ones = np.ones(len(data["action"]), np.uint8)  # a demonstration: expert labels, the expert in control
+            batch.append(({**data, LABEL_KEY: ones, INTERVENTION_KEY: ones}, info))
+        out.append_episodes(batch)
+    except BaseException:
+        out.abandon()  # no half-made aggregate (nor its staging folder) stays behind
+        raise
+    return out
+
+
+def rollout_env_args(store: EpisodeStore, task: str | None, robot: str | None = None) -> tuple[str, dict[str, Any]]:
+    """``make_env``'s task and keyword arguments for rollouts aggregated into ``store``: its task with
+    its robot (``robot``: a config that replaces the recorded one, resolved here), rendering the
+    store's cameras, so that a pixel policy's rollouts are stored like its demonstrations."""
+    from demo.sim.robot_record import resolve_robot
+    from demo.policies.observation import camera_list, image_keys
+
+    t = store.meta.task or {}
+    name = t.get("name")
+    if task and name and task != name:
+        raise DemoError(store.path, f"holds {name!r} demonstrations; DAgger cannot aggregate {task!r} rollouts into it")
+    task = task or name
+    if not task:
+        raise DemoError(store.path, "records no task; pass --task")
+    features = store.meta.features
+    cameras = camera_list((k, features[k].shape) for k in image_keys(features))
+    return task, {"robot": resolve_robot(store.meta.robot, robot, where=store.path), "cameras": cameras,
+                  **(t.get("options") or {})}
+
+
+def make_env_for_store(store: EpisodeStore, task: str, env_kwargs: dict[str, Any]) -> Any:
+    """The rollout environment (:func:`rollout_env_args`); refuses an expert that does not label in the
+    store's action representation."""
+    from demo.sim import make_env
+
+    env = make_env(task, **env_kwargs)
+    if env.action_spec.name != store.meta.action.name or env.action_spec.dim != store.meta.action.dim:
+        env.close()
+        raise DemoError(
+            store.path,
+            f"DAgger needs expert labels in the store's action representation ({store.meta.action.name}); "
+            f"the expert speaks {env.action_spec.name}",
+        )
+    return env
+
+
+# ================================================================================== one round's rollouts
+def deviation(mine: np.ndarray, label: np.ndarray, n_arm: int, gate: float) -> np.ndarray:
+    """How far the learner's actions stray from the expert's (``[..., A]`` each -> ``[...]``, rad): the
+    largest arm joint target difference, raised to ``2 gate`` where the gripper commands differ by more
+    than :data:`GRIPPER_GATE`. A gripper the learner leaves open where the expert closes it (or the
+    reverse) is straying too, though no arm joint deviates: the stall a supervisor steps in for."""
+    mine, label = np.asarray(mine, np.float32), np.asarray(label, np.float32)
+    d = np.abs(mine[..., :n_arm] - label[..., :n_arm]).max(axis=-1)
+    if mine.shape[-1] > n_arm:
+        d = np.where(np.abs(mine[..., n_arm] - label[..., n_arm]) > GRIPPER_GATE, np.maximum(d, 2.0 * gate), d)
+    return d
+
+
+# A gate decides, each step, whether the expert takes over: gate(frame, learner's action, expert's action).
+Gate = Callable[[dict[str, np.ndarray], np.ndarray, np.ndarray], bool]
+
+
+class DeviationGate:
+    """HG-DAgger's supervisor for one episode: takes over when :func:`deviation` exceeds ``threshold``
+    (rad) and hands back once it is below half of it (hysteresis, as a person would)."""
+
+    def __init__(self, threshold: float, n_arm: int):
+        self.threshold, self.n_arm, self.in_control = threshold, n_arm, False
+
+    def __call__(self, frame: dict[str, np.ndarray], mine: np.ndarray, label: np.ndarray) -> bool:
+        d = float(deviation(mine, label, self.n_arm, self.threshold))
+        self.in_control = d > (self.threshold / 2 if self.in_control else self.threshold)
+        return self.in_control
+
+
+def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | Gate | None,
+                   n_arm: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """One rollout of the mixture policy (``beta``), or of the learner under ``gate`` (a threshold:
+    HG-DAgger's :class:`DeviationGate`; or any :data:`Gate`, e.g. SafeDAgger's classifier), every
+    visited state labelled by the expert; under a gate only the frames the expert took are labels."""
+    env.reset(seed)
+    actor.reset(seed, env)
+    expert = env.expert(rng=np.random.default_rng([seed, 2]))
+    mix = np.random.default_rng([seed, 3])
+    decide = DeviationGate(gate, n_arm) if isinstance(gate, (int, float)) else gate
+    labelled: list[bool] = []
+    in_control: list[bool] = []
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        label = np.asarray(expert.act(env), dtype=np.float32)
+        mine = np.asarray(actor.act(frame), dtype=np.float32)
+        if decide is not None:
+            use_expert = bool(decide(frame, mine, label))
+            labelled.append(use_expert)
+        else:
+            use_expert = bool(mix.random() < beta) if beta > 0 else False
+            labelled.append(True)
+        in_control.append(use_expert)
+        executed = label if use_expert else mine
+        return StepCommand(executed=executed, label=label, ee_target=np.asarray(expert.ee_target, np.float32))
+
+    episode = rollout(env, seed, act, reset=False)
+    return episode_record(episode, seed, labelled, in_control, beta)
+
+
+def episode_record(episode: Any, seed: int, labelled: Sequence[bool], in_control: Sequence[bool], beta: float,
+                   source: str = "dagger") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """A family rollout (a recorded :class:`demo.sim.rollout.Episode`) as the aggregate stores it: its
+    frames with the per-frame flags ``info.labelled`` and ``info.intervention``, and its table row
+    (``labels``; ``expert_steps``, the frames the expert was in control of; ``takeovers``, how often
+    it took over from the learner)."""
+    data = dict(episode.data)
+    data[LABEL_KEY] = np.asarray(labelled, dtype=np.uint8)
+    flags = np.asarray(in_control, dtype=np.uint8)
+    data[INTERVENTION_KEY] = flags
+    info = {
+        "success": episode.success,
+        "seed": seed,
+        "source": source,
+        "operator": "expert",
+        "first_success_step": -1 if episode.first_success_step is None else episode.first_success_step,
+        "labels": int(np.sum(data[LABEL_KEY])),
+        "expert_steps": int(flags.sum()),
+        "takeovers": int((np.diff(np.r_[0, flags.astype(np.int64)]) == 1).sum()),
+        "beta": float(beta),
+    }
+    return data, info
+
+
+# An episode function: (env, actor, seed) -> (frames, table row) of one rollout. Picklable: workers run it.
+EpisodeFn = Callable[[Any, Any, int], tuple[dict[str, np.ndarray], dict[str, Any]]]
+
+
+@dataclass(frozen=True)
+class MixtureEpisodes:
+    """DAgger's and HG-DAgger's rollouts (:func:`dagger_episode`) as an :data:`EpisodeFn`."""
+
+    beta: float
+    gate: Any  # float | Gate | None
+    n_arm: int
+
+    def __call__(self, env: Any, actor: Any, seed: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        return dagger_episode(env, actor, seed, self.beta, self.gate, self.n_arm)
+
+
+@dataclass
+class Family:
+    """What a member of the DAgger family does in its rounds; this base class is DAgger (and, with a
+    gate, HG-DAgger) itself. Subclasses (SafeDAgger, AggreVaTe, DART, perturbation) override
+    :meth:`episodes` and may add per-round metrics (:meth:`round_entry`) and recorded settings."""
+
+    name: str = "dagger"
+    OPTIONS: ClassVar[tuple[str, ...]] = ()  # the fields ``--algo-opt KEY=VALUE`` may set
+
+    def episodes(self, run: TrainingRun, store: EpisodeStore, env: Any, r: int, beta: float,
+                 gate: float | None) -> EpisodeFn:
+        """Round ``r``'s episode function, made when the attached learner is the one that rolls out
+        (trained on the data through round ``r - 1``, ``run.data``)."""
+        return MixtureEpisodes(beta, gate, len(env.robot.arm_joints))
+
+    def round_entry(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
+        """What the member adds to round ``r``'s metrics, from its episodes' table rows."""
+        return {}
+
+    def to_json(self) -> dict[str, Any]:
+        """The member's own settings, recorded in ``run.json``."""
+        return {}
+
+
+FAMILIES = {"dagger": "demo.imitation.dagger:Family", "safedagger": "demo.imitation.safedagger:SafeDagger",
+            "aggrevate": "demo.imitation.aggrevate:AggreVaTe", "dart": "demo.imitation.dart:Dart",
+            "perturb": "demo.imitation.perturb:Perturb"}
+
+
+def make_family(name: str, options: dict[str, str] | None = None) -> Family:
+    """The family member ``name`` (:data:`FAMILIES`) with ``options`` (``--algo-opt KEY=VALUE``: text
+    parsed to the type of the field's default; ``none`` for None)."""
+    import importlib
+
+    if name not in FAMILIES:
+        raise DemoError("--algo", f"unknown member of the DAgger family {name!r} (choose from {', '.join(FAMILIES)})")
+    module, _, cls_name = FAMILIES[name].partition(":")
+    cls = getattr(importlib.import_module(module), cls_name)
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    for key, text in (options or {}).items():
+        if key not in cls.OPTIONS:
+            raise DemoError("--algo-opt", f"{name} has no option {key!r} (it has: {', '.join(cls.OPTIONS) or 'none'})")
+        default = defaults[key]
+        try:
+            if text.lower() == "none":
+                values[key] = None
+            elif isinstance(default, tuple):
+                values[key] = tuple(int(x) for x in text.split(","))
+            else:
+                values[key] = type(default)(text) if default is not None else float(text)
+        except ValueError:
+            raise DemoError("--algo-opt", f"{key}={text!r} is not a valid {type(default).__name__}") from None
+    return cls(**values)
+
+
+def learner_actions(bundle: ckpt.PolicyBundle, data: TrainingData, frames: np.ndarray, batch: int = 4096) -> np.ndarray:
+    """The learner's action ``[N, A]`` at each of ``frames`` (indices into ``data``'s frames) as a
+    rollout executes a single-step learner there: the first step of the chunk it predicts from the
+    frame's observation history, made absolute (relative actions), binary dimensions thresholded.
+    The family's estimates of the learner's error (SafeDAgger's deviation labels, DART's noise) use it."""
+    windows = data.windows(np.zeros(0, np.int64))  # get() takes any frame indices
+    device = next(bundle.policy.parameters()).device
+    binary = list(bundle.execution.binary)
+    out = [np.zeros((0, data.action.shape[1]), np.float32)]
+    for i in range(0, len(frames), batch):
+        t = np.asarray(frames[i : i + batch], dtype=np.int64)
+        obs = windows.get(t)[0]
+        obs = {k: v.to(device) for k, v in obs.items()} if isinstance(obs, dict) else obs.to(device)
+        with torch.inference_mode():
+            chunk = bundle.policy.predict(obs)
+        a = bundle.action_norm.unnormalize(chunk[:, 0].float().cpu().numpy())
+        if data.base is not None:
+            a = a + data.base[t]
+        if binary:
+            a[:, binary] = (a[:, binary] >= 0.5).astype(a.dtype)
+        out.append(a.astype(np.float32))
+    return np.concatenate(out)
+
+
+def round_rollouts(run: TrainingRun, env: Any, env_args: tuple[str, dict[str, Any]], seeds: Sequence[int],
+                   episodes: EpisodeFn, executor: ExecutorConfig) -> Iterator[tuple[dict[str, np.ndarray], dict[str, Any]]]:
+    """One round's ``episodes(env, actor, seed)`` of the attached learner, in seed order: in this process
+    (``process`` executor with at most 1 worker), else on the executor's workers, which get the
+    learner's weights in memory (never through a file) and run it on the learner's device (Ray
+    actors reserve a share of the GPUs for a learner on CUDA). The episodes do not depend on where
+    they ran."""
+    bundle = run.bundle()
+    if executor.kind == "process" and executor.workers <= 1:
+        actor = make_actor(bundle, env, run.execution)
+        with single_thread():
+            for seed in seeds:
+                yield episodes(env, actor, int(seed))
+        return
+    weights = ckpt.policy_tensors(bundle.policy.state_dict(), bundle.obs_norm, bundle.action_norm)
+    init_args = (env_args, {"policy": bundle.run["policy"]}, {k: v.numpy() for k, v in weights.items()},
+                 run.execution.to_json(), str(run.device))
+    jobs = [(int(seed), episodes) for seed in seeds]
+    for ready in ordered_map(_rollout_init, init_args, _rollout_run, jobs, executor.on_device(run.device),
+                             label=lambda job: f"DAgger rollout (seed {job[0]})"):
+        yield from ready
+
+
+_rollout: dict[str, Any] = {}  # a worker's environment and learner
+
+
+def _rollout_init(env_args: tuple[str, dict[str, Any]], record: dict[str, Any], weights: dict[str, np.ndarray],
+                  execution: dict[str, Any], device: str) -> None:
+    from demo.sim import make_env
+
+    torch.set_num_threads(1)
+    task, env_kwargs = env_args
+    env = make_env(task, **env_kwargs)
+    bundle = ckpt.bundle_from_tensors(record, {k: torch.tensor(v) for k, v in weights.items()}, device)
+    _rollout["env"], _rollout["actor"] = env, make_actor(bundle, env, ExecConfig.from_json(execution))
+
+
+def _rollout_run(job: tuple[int, EpisodeFn]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    seed, episodes = job
+    return episodes(_rollout["env"], _rollout["actor"], seed)
+
+
+# ================================================================================== the run
+def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None, progress: Progress | None = None,
+                 resume: bool = False, overwrite: bool = False, command: str | None = None,
+                 family: Family | None = None) -> dict[str, Any]:
+    """Round 0 (BC on the demonstrations), then ``rounds`` of expert-labelled rollouts + retraining.
+
+    ``executor``: where the rollouts run (default: in this process; see :func:`round_rollouts`);
+    ``family``: the member whose rounds these are (default: DAgger, HG-DAgger with a gate)."""
+    family = family or Family()
+    tc = config.train = learner_config(**config.train.given())
+    config.check()
+    executor = executor or ExecutorConfig("process", 1)
+    executor.check()
+    gate = config.gate_threshold()
+    source_path = store_path(tc.data)
+    total_steps = tc.steps + config.rounds * config.round_steps
+    run = TrainingRun(tc, progress=progress, resume=resume, overwrite=overwrite, command=command,
+                      total_steps=total_steps, name=family.name, title=f"{family.name} ({tc.algo}) on {source_path.name}")
+
+    # ---- 0. the environment and the aggregate store (in the run directory)
+    agg_path = run.out / DATA_DIR
+    with ExitStack() as stack:
+        if resume:
+            run.open_directory()  # a run without a train state is refused first
+        # The environment comes from the data DAgger aggregates into: the source for a new run, so that
+        # a wrong task or robot fails before anything is written; the run's own copy when resuming.
+        with EpisodeStore.open(agg_path if resume else source_path) as origin:
+            env_args = rollout_env_args(origin, config.task, tc.robot)
+            env = stack.enter_context(closing(make_env_for_store(origin, *env_args)))
+            run.open_directory()
+            if not resume:
+                store = create_aggregate(origin, agg_path)
+        if resume:
+            store = EpisodeStore.open(agg_path, "a")
+        stack.enter_context(store)
+        stack.enter_context(run)
+        stack.enter_context(session(executor))  # one Ray (when used) for every round
+        features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY)}
+        flagged = INTERVENTION_KEY in store.meta.features  # False in an aggregate made before the flag
+        recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
+        if features != recorded:
+            raise DemoError(source_path, f"records {sorted(features)}; DAgger rollouts record {sorted(recorded)}")
+
+        # ---- the demonstrations: round 0's data and normalisers (kept for every round unless refit)
+        round0 = dataclasses.replace(tc, data=str(agg_path))
+        demos = prepare(round0, store, among=np.flatnonzero(store.column("dagger_round") == 0))
+        demo_val = demos.val_episodes
+        demo_labels = demos.frames(np.union1d(demos.train_episodes, demo_val))
+
+        def round_data(r: int) -> TrainingData:
+            """Training data of the learner trained after round ``r``: demonstrations + rounds 1..r."""
+            if r == 0:
+                return demos
+            rounds_col = store.column("dagger_round")
+            episodes = np.union1d(demos.train_episodes, np.flatnonzero((rounds_col >= 1) & (rounds_col <= r)))
+            if config.warm_start or not config.refit_normalizers:
+                return demos.reload(store, episodes, demo_val)
+            return prepare(round0, store, split=(episodes, demo_val))
+
+        def new_learner(data: TrainingData, r: int, step: int) -> Learner:
+            return run.new_learner(data, step, tc.steps if r == 0 else config.round_steps, seed=tc.seed + 1000 * r)
+
+        def labels_so_far(r: int) -> int:
+            rounds_col, labels = store.column("dagger_round"), store.column("labels")
+            return demo_labels + int(labels[(rounds_col >= 1) & (rounds_col <= r)].sum())
+
+        data = demos
+        learner = new_learner(demos, 0, 0)
+        run.begin(store, demos, learner, {"name": family.name, **config.to_json(), **family.to_json(), "source_data": absolute(tc.data)})
+        run.metrics["rounds"] = []
+        done_round = -1
+        if resume:
+            saved = run.saved_extra()
+            if not saved.get("round_done", False):
+                raise DemoError(run.out, "was interrupted inside a round; start it again without --resume")
+            done_round = int(saved.get("round", 0))
+            data = round_data(done_round)
+            learner = new_learner(data, done_round, 0)
+            run.attach(learner, data)
+            run.restore(learner)
+
+        # ---- round 0: behaviour cloning on the demonstrations
+        if done_round < 0:
+            run.fit(tc.steps)
+            run.metrics["rounds"].append(_round_entry(0, 0.0, [], demo_labels, demo_labels, learner.step, run.evaluate()))
+            run.checkpoint({"round": 0, "round_done": True})
+        # ---- rounds 1..R: roll out, aggregate, retrain
+        def spent(r: int, infos: list[dict[str, Any]]) -> bool:
+            """Whether the labels through round ``r - 1`` and round ``r``'s ``infos`` reach ``max_labels``."""
+            if config.max_labels is None:
+                return False
+            return labels_so_far(r - 1) + sum(int(i["labels"]) for i in infos) >= config.max_labels
+
+        for r in range(max(done_round, 0) + 1, config.rounds + 1):
+            if spent(r, []):
+                break  # the label budget is spent: later rounds would add nothing
+            beta = config.beta_at(r)
+            existing = np.flatnonzero(store.column("dagger_round") == r)  # reused after an interruption
+            infos = [store.episode_info(int(i)) for i in existing]
+            seeds = dagger_seeds(tc.seed, r, config.episodes_per_round)[len(existing):]
+            episodes = family.episodes(run, store, env, r, beta, gate)
+            for episode, info in round_rollouts(run, env, env_args, seeds, episodes, executor):
+                if not flagged:
+                    episode.pop(INTERVENTION_KEY)
+                info.update(task=store.meta.task.get("name", ""), dagger_round=r)
+                store.append_episode(episode, **info)
+                infos.append(info)
+                run.tick(info=f"round {r}: rollout {len(infos)}/{config.episodes_per_round}")
+                if spent(r, infos):
+                    break
+            data = round_data(r)
+            if config.warm_start:
+                learner.phase_start, learner.phase_steps = learner.step, config.round_steps
+                run.attach(learner, data)
+            else:
+                learner = new_learner(data, r, learner.step)
+                run.attach(learner, data)
+            run.fit(learner.step + config.round_steps)
+            entry = run.evaluate()
+            labels_round = int(sum(int(i["labels"]) for i in infos))
+            last = {**_round_entry(r, beta, infos, labels_round, labels_so_far(r), learner.step, entry),
+                    **family.round_entry(infos)}
+            run.metrics["rounds"].append(last)
+            run.checkpoint({"round": r, "round_done": True})
+            run.tick(message=f"round {r}: beta {beta:.2f}, rollout success {last['rollout_success']:.0%}, "
+                             f"labels {last['labels_round']} (total {last['labels_total']})"
+                             + (f", eval success {entry['success_rate']:.0%}" if entry else ""))
+
+        total_labels = labels_so_far(config.rounds)
+        run.record["data"]["expert_labels"] = total_labels
+        run.record["data"]["seeds"] = [int(x) for x in store.column("seed") if int(x) >= 0]
+        summary = run.finish({"round": config.rounds, "round_done": True}, demo_labels=demo_labels,
+                             episodes=store.num_episodes)
+    return {**summary, "algo": family.name, "rounds": run.metrics["rounds"]}
+
+
+def _round_entry(r: int, beta: float, infos: list[dict[str, Any]], labels_round: int, labels_total: int, step: int,
+                 entry: dict[str, Any] | None) -> dict[str, Any]:
+    return {
+        "round": r,
+        "beta": beta,
+        "episodes": len(infos),
+        "rollout_success": float(np.mean([bool(i["success"]) for i in infos])) if infos else None,
+        "expert_steps": int(sum(int(i.get("expert_steps", 0)) for i in infos)),
+        "labels_round": labels_round,
+        "labels_total": labels_total,
+        "step": step,
+        "eval_success": entry["success_rate"] if entry else None,
+    }

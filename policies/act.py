@@ -1,0 +1,157 @@
+"""ACT, the Action Chunking Transformer (Zhao et al. 2023): ``demo train DATA --algo act``.
+
+Reads top to bottom:
+
+1. :class:`ACTConfig`: the network's hyperparameters. ACT's published sizes (d_model 512, 4 + 7
+   layers, feed-forward 3200, chunk 100 at 50 Hz) are sized for a GPU; the defaults here are a
+   CPU-sized transformer of the same layout. The training-loop settings (chunk, learning rate,
+   execution with temporal ensembling) are in :data:`demo.training.config.POLICY_DEFAULTS`.
+2. :class:`ACTPolicy`, a conditional VAE whose decoder is a transformer:
+
+   - *CVAE encoder* (training only): a transformer encoder over ``[CLS, observation, a_0 .. a_{H-1}]``
+     (the current frame's normalised observation and the demonstrated chunk, one token each, with
+     learned position embeddings; padded chunk steps are masked out of the attention, as ACT's
+     ``is_pad``) gives ``mu, logvar`` of the style variable ``z`` from the CLS token;
+   - *decoder*: a transformer encoder over ``[z, o_1 .. o_{n_obs}]`` (one token per observation
+     frame; a visuomotor policy's frames carry the cameras' features, :mod:`demo.policies.visuomotor`),
+     then a transformer decoder whose ``horizon`` learned queries attend to that memory and become
+     the chunk ``[H, A]``.
+
+3. :meth:`ACTPolicy.loss`: L1 between the predicted and the demonstrated chunk on the steps before
+   the episode end, plus ``kl_weight`` times the KL divergence of ``N(mu, sigma)`` from ``N(0, I)``
+   (summed over the latent dimensions, mean over the batch: ACT's ``kl_divergence``; published
+   weight 10, here 0.01: see :class:`ACTConfig`).
+4. :meth:`ACTPolicy.predict`: by default (``latent=commit``) ``z`` drawn from the prior once per
+   episode (the rollout generator's next numbers, read without consuming them), so that where ``z``
+   carries a mode the whole episode keeps it; ``latent=zero`` is the paper's ``z = 0``, a
+   deterministic query; ``latent=sample`` draws a new ``z`` at every query.
+
+Execution is the shared executor (:mod:`demo.policies.actor`): a query every step and temporal
+ensembling of every chunk covering the step, weights ``exp(-m i)`` with ``i = 0`` the oldest (ACT's
+``exp(-k i)``, ``k = 0.01`` = ``--ensemble-decay``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from demo.policies.heads import masked_mean, peek
+from demo.policies.policy import Policy, PolicySpec, register_policy
+
+LATENTS = ("zero", "sample", "commit")
+
+
+# ================================================================================== 1. config
+@dataclass
+class ACTConfig:
+    """ACT's hyperparameters (``--policy-opt name=value``)."""
+
+    d_model: int = 128  # token width (published: 512)
+    heads: int = 4  # attention heads (published: 8)
+    encoder_layers: int = 2  # decoder side's transformer encoder over [z, observation frames] (published: 4)
+    # transformer decoder of the chunk queries (published: 7, of which the original code uses the
+    # first layer's output only; LeRobot's ACT sets 1 to match)
+    decoder_layers: int = 1
+    vae_layers: int = 2  # CVAE encoder over [CLS, observation, actions] (published: 4)
+    feedforward: int = 512  # feed-forward width in every layer (published: 3200)
+    dropout: float = 0.1  # published: 0.1
+    latent_dim: int = 32  # style variable z (published: 32)
+    # beta of the KL term (published: 10). At 10 the latent carries nothing: one bit of "which side" costs
+    # ~7 loss units against an L1 gain of a few hundredths, and on avoid (bimodal, 200 demos) ACT
+    # averages the sides into the obstacle: 49/100 (z = 0), 51/100 (z sampled). At 0.01: 84/100 (z = 0),
+    # 85/100 (commit), 76/100 (z sampled per query: ensembled chunks of different z average the modes).
+    kl_weight: float = 0.01
+    # z at inference: zero (the prior's mean, published) | sample (from the prior, seeded, per query) |
+    # commit (one draw from the prior per episode: every query of a rollout uses the same z)
+    latent: str = "commit"
+
+    def __post_init__(self) -> None:
+        if min(self.d_model, self.heads, self.encoder_layers, self.decoder_layers, self.vae_layers,
+               self.feedforward, self.latent_dim) < 1:
+            raise ValueError("d_model, heads, layers, feedforward and latent_dim must be positive")
+        if self.d_model % self.heads:
+            raise ValueError(f"d_model ({self.d_model}) must be divisible by heads ({self.heads})")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must lie in [0, 1), got {self.dropout}")
+        if self.kl_weight < 0:
+            raise ValueError(f"kl_weight must be >= 0, got {self.kl_weight}")
+        if self.latent not in LATENTS:
+            raise ValueError(f"latent must be one of {', '.join(LATENTS)}, got {self.latent!r}")
+
+
+def _encoder(c: ACTConfig, layers: int) -> nn.TransformerEncoder:
+    # Pre-norm: trains without ACT's 1e-5 learning rate at the loop's warm-up + cosine schedule.
+    layer = nn.TransformerEncoderLayer(c.d_model, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
+    return nn.TransformerEncoder(layer, layers, norm=nn.LayerNorm(c.d_model), enable_nested_tensor=False)
+
+
+# ================================================================================== 2. the network
+@register_policy("act")
+class ACTPolicy(Policy):
+    Config = ACTConfig
+
+    def __init__(self, spec: PolicySpec, config: ACTConfig):
+        super().__init__(spec, config)
+        c, d = config, config.d_model
+        # CVAE encoder: [CLS, observation (current frame), actions]
+        self.cls = nn.Parameter(torch.zeros(1, 1, d))
+        self.vae_obs = nn.Linear(spec.obs_dim, d)
+        self.vae_action = nn.Linear(spec.action_dim, d)
+        self.vae_pos = nn.Parameter(torch.zeros(1, 2 + spec.horizon, d))
+        self.vae = _encoder(c, c.vae_layers)
+        self.latent_proj = nn.Linear(d, 2 * c.latent_dim)  # -> mu, logvar
+        # decoder: memory [z, observation frames], then chunk queries
+        self.latent_in = nn.Linear(c.latent_dim, d)
+        self.obs_in = nn.Linear(spec.obs_dim, d)
+        self.memory_pos = nn.Parameter(torch.zeros(1, 1 + spec.n_obs, d))
+        self.encoder = _encoder(c, c.encoder_layers)
+        self.queries = nn.Parameter(torch.zeros(1, spec.horizon, d))
+        layer = nn.TransformerDecoderLayer(d, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
+        self.decoder = nn.TransformerDecoder(layer, c.decoder_layers, norm=nn.LayerNorm(d))
+        self.action_out = nn.Linear(d, spec.action_dim)
+        for p in (self.cls, self.vae_pos, self.memory_pos, self.queries):
+            nn.init.normal_(p, std=0.02)
+        # The posterior starts as the prior (KL 0): random mu/logvar would start the KL term at
+        # 20-60 (x kl_weight 10), and the first few hundred steps would go to shrinking it.
+        nn.init.zeros_(self.latent_proj.weight)
+        nn.init.zeros_(self.latent_proj.bias)
+
+    def posterior(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``mu, logvar [B, latent_dim]`` of z given the current frame and the demonstrated chunk."""
+        b = action.shape[0]
+        tokens = torch.cat([self.cls.expand(b, -1, -1), self.vae_obs(obs[:, -1:]), self.vae_action(action)], dim=1)
+        # CLS and observation are never padded; padded chunk steps are invisible to attention
+        pad = torch.cat([torch.zeros(b, 2, dtype=torch.bool, device=action.device), action_pad], dim=1)
+        cls = self.vae(tokens + self.vae_pos, src_key_padding_mask=pad)[:, 0]
+        mu, logvar = self.latent_proj(cls).chunk(2, dim=-1)
+        return mu, logvar
+
+    def decode(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """The chunk ``[B, H, A]`` for ``obs [B, n_obs, D]`` and style ``z [B, latent_dim]``."""
+        b = obs.shape[0]
+        memory = torch.cat([self.latent_in(z).unsqueeze(1), self.obs_in(obs)], dim=1) + self.memory_pos
+        memory = self.encoder(memory)
+        return self.action_out(self.decoder(self.queries.expand(b, -1, -1), memory))
+
+    # ---------------------------------------------------------------- 3. training: L1 + beta KL
+    def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
+        mu, logvar = self.posterior(obs, action, action_pad)
+        z = mu + (0.5 * logvar).exp() * torch.randn_like(mu)  # reparameterisation
+        l1 = masked_mean((self.decode(obs, z) - action).abs(), ~action_pad)
+        kl = (-0.5 * (1 + logvar - mu.square() - logvar.exp())).sum(dim=-1).mean()
+        return l1 + self.config.kl_weight * kl
+
+    # ---------------------------------------------------------------- 4. inference: z = 0
+    @torch.no_grad()
+    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        shape = (obs.shape[0], self.config.latent_dim)
+        if self.config.latent == "sample":
+            z = torch.randn(shape, generator=generator, device=obs.device, dtype=obs.dtype)
+        elif self.config.latent == "commit":
+            z = peek(generator, lambda: torch.randn(shape, generator=generator, device=obs.device, dtype=obs.dtype))
+        else:
+            z = torch.zeros(shape, device=obs.device, dtype=obs.dtype)
+        return self.decode(obs, z)

@@ -1,0 +1,76 @@
+"""Visuomotor policies: image encoders and proprioception in front of any registered policy.
+
+A :class:`VisuomotorPolicy` wraps a policy class (BC's MLP, diffusion, ...) built for a vector
+observation. Each camera has its own encoder (:class:`demo.policies.encoders.CameraEncoder`: random
+crop in training, centre crop in evaluation, a backbone, spatial-softmax keypoints, a linear layer);
+its features are concatenated with the normalised low-dim vector (the robot's proprioception by
+default) frame by frame, and the wrapped policy sees ``[B, n_obs, obs_dim + cameras * features]``.
+Encoders and policy train end to end on the wrapped policy's own loss, as in Diffusion Policy.
+
+Observations reach it as a dict (:data:`STATE` -> ``[B, n_obs, obs_dim]`` float, and per camera key
+``[B, n_obs, H, W, 3]`` uint8), built by :class:`demo.training.data.Windows` in training and by
+:class:`demo.policies.actor.PolicyActor` in rollouts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import torch
+from torch import nn
+
+from demo.policies.encoders import CameraEncoder, EncoderConfig
+from demo.policies.observation import STATE, IMAGE_PREFIX
+from demo.policies.policy import Policy, PolicySpec
+
+
+def encoder_config(encoder: EncoderConfig | dict[str, Any] | None) -> EncoderConfig:
+    if isinstance(encoder, EncoderConfig):
+        return encoder
+    fields = {f.name for f in dataclasses.fields(EncoderConfig)}
+    unknown = sorted(set(encoder or {}) - fields)
+    if unknown:
+        raise ValueError(f"encoder has no option {', '.join(unknown)} (options: {', '.join(sorted(fields))})")
+    return EncoderConfig(**(encoder or {}))
+
+
+class VisuomotorPolicy(Policy):
+    """Per-camera encoders + the low-dim vector -> the wrapped policy class ``head``."""
+
+    def __init__(self, spec: PolicySpec, config: Any, head: type[Policy], encoder: EncoderConfig):
+        super().__init__(spec, config)
+        self.name = head.name
+        self.encoder_config = encoder
+        self.keys = [key for key, _, _ in spec.images]
+        self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder) for key, h, w in spec.images})
+        head_spec = dataclasses.replace(spec, obs_dim=spec.obs_dim + len(self.keys) * encoder.features, images=())
+        self.head = head(head_spec, config)
+
+    def encode(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """``{state, camera keys}`` -> ``[B, n_obs, obs_dim + cameras * features]``."""
+        return self.fuse(obs[STATE], self.preprocess(obs))
+
+    def preprocess(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Each camera's uint8 images as its backbone takes them: ``[B * n_obs, 3, ch, cw]`` floats,
+        scaled and cropped (randomly in training)."""
+        return {key: encoder.preprocess(obs[key].flatten(0, 1)) for key, encoder in zip(self.keys, self.cameras.values())}
+
+    def fuse(self, state: torch.Tensor, crops: dict[str, torch.Tensor]) -> torch.Tensor:
+        """``state [B, n_obs, D]`` and :meth:`preprocess`'s crops -> the wrapped policy's observation."""
+        b, t = state.shape[:2]
+        parts = [encoder.features(crops[key]).reshape(b, t, -1).to(state.dtype)
+                 for key, encoder in zip(self.keys, self.cameras.values())]
+        return torch.cat([state, *parts], dim=-1)
+
+    def loss(self, obs: dict[str, torch.Tensor], action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
+        return self.head.loss(self.encode(obs), action, action_pad)
+
+    @torch.no_grad()
+    def predict(self, obs: dict[str, torch.Tensor], generator: torch.Generator | None = None) -> torch.Tensor:
+        return self.head.predict(self.encode(obs), generator=generator)
+
+
+def encoder_record(policy: Policy) -> dict[str, Any] | None:
+    """The encoder settings run.json records for a visuomotor policy (None for a state policy)."""
+    return dataclasses.asdict(policy.encoder_config) if isinstance(policy, VisuomotorPolicy) else None

@@ -1,0 +1,753 @@
+"""PPO (Schulman et al. 2017) on the tasks' Gymnasium environments, CleanRL style, top to bottom.
+
+``demo irl train --algo ppo --task reach --out RUN`` runs :func:`train` on the dense task reward, or
+with ``--reward IRL_RUN`` on the reward an IRL run learned (reward transfer, :func:`learned_reward`);
+GAIL, AIRL and linear IRL (:mod:`demo.rl.adversarial`, :mod:`demo.rl.irl_linear`) run the same
+loop (:class:`RLRun`) with their learned reward in place of the task's. Measured on ``reach`` with the
+defaults: 92/100 in ``demo eval`` after 480,000 environment steps (28 min of a shared 2-core CPU).
+
+**Action space.** The policy is a Gaussian over *normalised* actions in [-1, 1] (clipped when
+executed), mapped linearly onto per-step bounds. The default, ``joint_pos``, is joint position
+targets *relative to the measured joints* (+-``max_joint_step`` = 0.1 rad per control step; the
+gripper closedness 0..1 absolute), the parameterisation BC's runs use (:mod:`demo.policies.relative`):
+zero is "hold still", and a step's effect is local wherever the arm is. ``ee7`` (end-effector
+deltas through the env's IK, +-2 cm and +-0.1 rad per step) makes the action that reduces the
+Cartesian errors nearly linear in the observed offsets, but measured on ``reach`` (same settings,
+shared 2-core machine) it learned no faster per sample (dense return -296 vs -204 after 40,000
+steps: random rotation deltas integrate into a 1-1.7 rad orientation walk) and stepped 3-4x slower
+(74 vs ~300 steps/s: a converged IK solve per step), so joint deltas are the default.
+
+**The loop** (one *iteration*): ``num_envs`` environments (a list stepped in turn) each run
+``num_steps`` control steps with the current policy; rewards (the dense task reward of
+:mod:`demo.rl.rewards`, or a learned one) are scaled by a running std of the discounted return;
+advantages by GAE(gamma, lambda), bootstrapping on time-limit truncation (only a task's failure,
+e.g. avoid's collision, is terminal); then ``epochs`` passes of minibatch updates of the clipped
+surrogate, a value loss and an entropy bonus, with Adam, the learning rate annealed linearly.
+
+**Observations** are the vector a BC policy of the same task reads (:class:`ObsSpec` defaults:
+state without velocities, positions relative to the EE), standardised by a running mean and std
+(floored at :data:`MIN_STD`) and clipped to +-:data:`~demo.policies.normalizer.OBS_CLIP`. The
+normaliser is frozen during an iteration and updated after it; it is saved as the run's
+``MinMaxNormalizer`` with ``low = mean - std``, ``high = mean + std`` (the same affine map), so
+``demo eval RUN`` executes the policy's mean action exactly as training computed it.
+
+**Episodes** never end on success during training (``hold_success_s=None``): a learned reward of
+one sign would otherwise teach the policy to end episodes early or to avoid ending them (the
+survival bias of Kostrikov et al. 2019); they run to the task's horizon. Their reset seeds are
+``episode_seed(seed + RL_OFFSET, i)``, disjoint from collection, ``demo eval`` and monitoring
+(:mod:`demo.seeds`). ``eval_every`` iterations the policy's mean is rolled out as ``demo eval``
+does (success held 0.5 s ends an episode) on the monitoring seeds.
+
+The run directory is a ``demo eval`` run (:mod:`demo.policies.checkpoint`): the policy is registered as
+``ppo`` (:class:`GaussianPolicy`, whose ``predict`` is the clipped mean), ``train_state.pt`` holds the
+critic, the optimiser and the running statistics (tensors only).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.distributions import Normal
+
+from demo.errors import DemoError
+from demo.progress import Progress
+from demo.seeds import RL_OFFSET, episode_seed
+from demo.store import ActionSpec
+from demo.policies import checkpoint as ckpt
+from demo.policies.actor import ExecConfig
+from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
+from demo.policies.observation import ObsSpec
+from demo.policies.policy import Policy, PolicySpec, register_policy
+from demo.policies.relative import RelativeActions
+from demo.rl.rewards import TaskReward, pearson, task_reward
+
+MIN_STD = 0.01  # floor of the observation std (data units: m, rad, 1), so a constant input stays near 0
+ACTIONS = ("ee7", "joint_pos")
+
+
+# ====================================================================================== configuration
+@dataclass
+class PPOConfig:
+    """Everything a PPO run (and the RL inside GAIL, AIRL and linear IRL) is trained with."""
+
+    task: str = "reach"
+    task_options: dict[str, Any] = field(default_factory=dict)
+    robot: str | None = None  # robot config TOML; default the built-in arm
+    out: str = ""
+    reward: str = "task"  # the dense task reward (demo.rl.rewards); IRL algorithms bring their own
+    action: str = "joint_pos"  # joint_pos | ee7 (module docstring)
+    obs_keys: tuple[str, ...] = ()  # default: demo.policies.observation's state keys
+    seed: int = 0
+    total_steps: int = 480_000  # environment (control) steps; reach: 92/100 in demo eval after 480,000 (28 min, shared CPU)
+    num_envs: int = 16
+    num_steps: int = 100  # control steps per environment per iteration (reach's horizon)
+    epochs: int = 10
+    minibatches: int = 8
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float | None = None  # stop an iteration's epochs once the approximate KL exceeds it
+    norm_reward: bool = True  # scale rewards by a running std of the discounted return
+    hidden: tuple[int, ...] = (256, 256)  # actor and critic MLP widths (tanh)
+    init_log_std: float = -1.0  # initial log std of the Gaussian, normalised action units (std 0.37)
+    max_ee_step: float = 0.02  # m per control step: the ee7 position bound
+    max_rot_step: float = 0.1  # rad per control step: the ee7 rotation bound
+    max_joint_step: float = 0.1  # rad per control step: the joint_pos bound (relative to the measured joints)
+    eval_every: int = 10  # iterations between rollout evaluations (0: only at the end)
+    eval_episodes: int = 20
+    threads: int = 1
+
+    def check(self) -> None:
+        if self.action not in ACTIONS:
+            raise DemoError("--action", f"RL acts in {' or '.join(ACTIONS)}, not {self.action!r}")
+        positive = {"total_steps": self.total_steps, "num_envs": self.num_envs, "num_steps": self.num_steps,
+                    "epochs": self.epochs, "minibatches": self.minibatches, "eval_episodes": self.eval_episodes}
+        for name, value in positive.items():
+            if value < 1:
+                raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
+        if self.num_envs * self.num_steps < self.minibatches:
+            raise DemoError("--minibatches", "more minibatches than transitions per iteration")
+        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1 and self.clip > 0 and self.lr > 0):
+            raise DemoError("--gamma", "needs 0 < gamma <= 1, 0 <= gae_lambda <= 1, clip > 0 and lr > 0")
+        if min(self.max_ee_step, self.max_rot_step, self.max_joint_step) <= 0:
+            raise DemoError("--max-ee-step", "action bounds must be > 0")
+
+    @property
+    def batch(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def iterations(self) -> int:
+        return max(1, math.ceil(self.total_steps / self.batch))
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["obs_keys"], d["hidden"] = list(self.obs_keys), list(self.hidden)
+        return d
+
+
+# ====================================================================================== the networks
+def mlp(sizes: Sequence[int], out_gain: float) -> nn.Sequential:
+    """tanh MLP with orthogonal weights (gain sqrt 2; ``out_gain`` on the last layer), zero biases."""
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        linear = nn.Linear(a, b)
+        nn.init.orthogonal_(linear.weight, out_gain if i == len(sizes) - 2 else math.sqrt(2))
+        nn.init.zeros_(linear.bias)
+        layers += [linear, nn.Tanh()]
+    return nn.Sequential(*layers[:-1])
+
+
+@dataclass
+class GaussianConfig:
+    hidden: tuple[int, ...] = (256, 256)
+    init_log_std: float = -1.0
+
+    def __post_init__(self) -> None:
+        self.hidden = tuple(int(h) for h in self.hidden)
+        if not self.hidden or min(self.hidden) < 1:
+            raise ValueError(f"hidden sizes must be positive, got {self.hidden}")
+
+
+@register_policy("ppo")
+class GaussianPolicy(Policy):
+    """A diagonal Gaussian over normalised actions: an MLP mean and a state-independent log std.
+
+    ``predict`` is the mean clipped to [-1, 1] (what is executed in evaluation); ``loss`` is the mean's
+    squared error to normalised actions (behaviour cloning, for ``--init-bc``)."""
+
+    Config = GaussianConfig
+
+    def __init__(self, spec: PolicySpec, config: GaussianConfig):
+        super().__init__(spec, config)
+        if spec.n_obs != 1 or spec.horizon != 1 or spec.images:
+            raise ValueError("the Gaussian policy reads one frame of low-dim state and acts one step")
+        self.mean = mlp([spec.obs_dim, *config.hidden, spec.action_dim], out_gain=0.01)
+        self.log_std = nn.Parameter(torch.full((spec.action_dim,), float(config.init_log_std)))
+
+    def distribution(self, obs: torch.Tensor) -> Normal:
+        """The action distribution for normalised observations ``[B, obs_dim]``."""
+        mean = self.mean(obs)
+        return Normal(mean, self.log_std.exp().expand_as(mean))
+
+    def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
+        return ((self.mean(obs[:, -1]) - action[:, 0]) ** 2).mean()
+
+    @torch.no_grad()
+    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        return self.mean(obs[:, -1]).clamp(-1.0, 1.0)[:, None]
+
+
+class RunningMeanStd:
+    """Mean and variance of every vector seen (parallel Welford update), float64."""
+
+    def __init__(self, dim: int):
+        self.mean, self.var, self.count = np.zeros(dim), np.ones(dim), 1e-4
+
+    def update(self, x: np.ndarray) -> None:
+        x = np.asarray(x, np.float64).reshape(-1, self.mean.shape[0])
+        n, mean, var = len(x), x.mean(axis=0), x.var(axis=0)
+        delta, total = mean - self.mean, self.count + len(x)
+        self.mean = self.mean + delta * n / total
+        self.var = (self.var * self.count + var * n + delta**2 * self.count * n / total) / total
+        self.count = total
+
+    def normalizer(self) -> MinMaxNormalizer:
+        """``(x - mean) / std`` as a :class:`MinMaxNormalizer` (std floored at :data:`MIN_STD`)."""
+        std = np.maximum(np.sqrt(self.var), MIN_STD)
+        return MinMaxNormalizer(self.mean - std, self.mean + std)
+
+    def state(self, prefix: str) -> dict[str, torch.Tensor]:
+        return {f"{prefix}.mean": torch.from_numpy(self.mean), f"{prefix}.var": torch.from_numpy(self.var),
+                f"{prefix}.count": torch.tensor(self.count, dtype=torch.float64)}
+
+
+class RewardScaler:
+    """Rewards divided by the running std of each environment's discounted return (CleanRL's
+    ``NormalizeReward``), so one learning rate fits rewards of any scale; clipped to +-10."""
+
+    def __init__(self, num_envs: int, gamma: float):
+        self.ret, self.gamma, self.rms = np.zeros(num_envs), gamma, RunningMeanStd(1)
+
+    def __call__(self, rewards: np.ndarray, dones: np.ndarray) -> np.ndarray:
+        """``[T, N]`` rewards (and episode ends) of one iteration, scaled."""
+        out = np.empty_like(rewards, dtype=np.float64)
+        for t in range(len(rewards)):
+            self.ret = self.ret * self.gamma + rewards[t]
+            self.rms.update(self.ret[:, None])
+            out[t] = rewards[t] / math.sqrt(float(self.rms.var[0]) + 1e-8)
+            self.ret[dones[t]] = 0.0
+        return np.clip(out, -10.0, 10.0)
+
+
+# ====================================================================================== environments
+def action_bounds(config: PPOConfig, n_arm: int) -> MinMaxNormalizer:
+    """What [-1, 1] maps onto, per action entry (gripper closedness always 0..1)."""
+    if config.action == "ee7":
+        high = np.r_[np.full(3, config.max_ee_step), np.full(3, config.max_rot_step)]
+    else:
+        high = np.full(n_arm, config.max_joint_step)
+    return MinMaxNormalizer(np.r_[-high, 0.0], np.r_[high, 1.0])
+
+
+class EnvPool:
+    """``n`` task environments (:class:`demo.gym.env.DemoEnv`) stepped in turn, each reset as its
+    episode ends, from the RL seed stream (module docstring)."""
+
+    def __init__(self, config: PPOConfig, n: int):
+        from demo.gym.env import DemoEnv
+
+        self.config = config
+        self.envs: list[DemoEnv] = []
+        try:
+            for _ in range(n):
+                self.envs.append(DemoEnv(config.task, robot=config.robot, action=config.action, hold_success_s=None,
+                                         **config.task_options))
+        except BaseException:
+            self.close()
+            raise
+        first = self.envs[0]
+        self.obs_spec = ObsSpec.from_features(first.features, config.obs_keys or None, where=f"{config.task} environment")
+        if self.obs_spec.images:
+            raise DemoError("--obs-keys", "RL here reads state observations only, not camera images")
+        self.action_spec: ActionSpec = first.action_spec
+        self.n_arm = first.sim.robot.n_arm
+        self.horizon = first.horizon
+        self.relative = RelativeActions("obs.joint_pos", tuple(range(self.n_arm)), tuple(range(self.n_arm))) \
+            if config.action == "joint_pos" else None
+        self.episodes = 0
+        self.frames: list[dict[str, np.ndarray]] = []
+
+    def _reset(self, i: int) -> dict[str, np.ndarray]:
+        seed = episode_seed(self.config.seed + RL_OFFSET, self.episodes)
+        self.episodes += 1
+        return self.envs[i].reset(seed=seed)[0]
+
+    def reset(self) -> list[dict[str, np.ndarray]]:
+        self.frames = [self._reset(i) for i in range(len(self.envs))]
+        return self.frames
+
+    def step(self, actions: np.ndarray) -> tuple[list[dict[str, np.ndarray]], np.ndarray, np.ndarray, np.ndarray,
+                                                 np.ndarray]:
+        """Execute one action per environment (its representation, e.g. ee7) from the current frames.
+
+        Returns the frames after the step (before any reset), and per environment ``terminated``
+        (failed for good), ``truncated`` (horizon), ``success`` and ``failed``; finished episodes are
+        reset and :attr:`frames` holds the frames the next step starts from."""
+        n = len(self.envs)
+        after, term, trunc, success, failed = [], np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+        for i, env in enumerate(self.envs):
+            frame, _, term[i], trunc[i], info = env.step(actions[i])
+            after.append(frame)
+            success[i], failed[i] = info["success"], info["failure"] is not None
+            self.frames[i] = self._reset(i) if term[i] or trunc[i] else frame
+        return after, term, trunc, success, failed
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+def stack(frames: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Frames (dicts of arrays) -> one dict of arrays with a leading axis."""
+    return {k: np.stack([f[k] for f in frames]) for k in frames[0]}
+
+
+# ====================================================================================== rollouts
+@dataclass
+class Rollout:
+    """One iteration's transitions, ``[T, N, ...]`` (steps x environments)."""
+
+    obs: np.ndarray  # raw observation vectors before each step
+    next_obs: np.ndarray  # raw observation vectors after it (before any reset)
+    actions: np.ndarray  # normalised actions drawn (not clipped)
+    logprobs: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    success: np.ndarray  # the task's success predicate after the step
+    features: np.ndarray  # [T, N, F] the dense reward's features after the step
+    task_reward: np.ndarray  # [T, N] the dense task reward
+    starts: np.ndarray  # [T, N] whether the step is an episode's first
+    obs_norm: MinMaxNormalizer  # the observation normaliser the policy acted with
+    frames: dict[str, np.ndarray]  # every observation key of the env before each step, [T, N, ...]
+    next_frames: dict[str, np.ndarray]  # ... and after it (before any reset)
+
+    @property
+    def dones(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+    def vectors(self, spec: ObsSpec, after: bool = False) -> np.ndarray:
+        """``[T * N, spec.dim]``: another observation vector (e.g. a discriminator's) of every transition's
+        state before (``after``: after) its step."""
+        frames = self.next_frames if after else self.frames
+        return spec.concat({k: v.reshape(-1, *v.shape[2:]) for k, v in frames.items()})
+
+    def normalized(self, raw: np.ndarray) -> np.ndarray:
+        return np.clip(self.obs_norm.normalize(raw), -OBS_CLIP, OBS_CLIP)
+
+
+class Agent:
+    """The policy, the critic, their optimiser and the observation statistics."""
+
+    def __init__(self, config: PPOConfig, obs_dim: int, action_dim: int):
+        self.config = config
+        spec = PolicySpec(obs_dim, action_dim)
+        self.policy = GaussianPolicy(spec, GaussianConfig(config.hidden, config.init_log_std))
+        self.critic = mlp([obs_dim, *config.hidden, 1], out_gain=1.0)
+        params = [*self.policy.parameters(), *self.critic.parameters()]
+        self.optimizer = torch.optim.Adam(params, lr=config.lr, eps=1e-5)
+        self.obs_rms = RunningMeanStd(obs_dim)
+        self.obs_norm = self.obs_rms.normalizer()
+
+    def act(self, obs_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Draw normalised actions for normalised observations ``[N, D]``: ``(actions, logprobs)``."""
+        with torch.no_grad():
+            dist = self.policy.distribution(torch.from_numpy(obs_n.astype(np.float32)))
+            a = dist.sample()
+            return a.numpy(), dist.log_prob(a).sum(-1).numpy()
+
+    def values(self, obs_n: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.critic(torch.from_numpy(obs_n.astype(np.float32)))[..., 0].numpy()
+
+    def logprob(self, obs_n: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """log pi(a|s) under the current policy (``[..., D]``, ``[..., A]`` -> ``[...]``)."""
+        with torch.no_grad():
+            dist = self.policy.distribution(torch.from_numpy(obs_n.astype(np.float32)))
+            return dist.log_prob(torch.from_numpy(actions.astype(np.float32))).sum(-1).numpy()
+
+
+def collect(agent: Agent, pool: EnvPool, reward: TaskReward, action_norm: MinMaxNormalizer,
+            steps: int) -> Rollout:
+    """``steps`` control steps of every environment with the agent's stochastic policy."""
+    obs_spec, options = pool.obs_spec, pool.config.task_options
+    norm = agent.obs_norm
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("obs", "next_obs", "actions", "logprobs", "terminated",
+                                                        "truncated", "success", "features", "starts")}
+    before_all: list[dict[str, np.ndarray]] = []
+    after_all: list[dict[str, np.ndarray]] = []
+    obs = obs_spec.concat(stack(pool.frames))
+    for _ in range(steps):
+        out["starts"].append(np.array([env.sim.steps == 0 for env in pool.envs]))
+        before_all.append(stack(pool.frames))
+        a, logp = agent.act(np.clip(norm.normalize(obs), -OBS_CLIP, OBS_CLIP))
+        executed = action_norm.unnormalize(np.clip(a, -1.0, 1.0))
+        if pool.relative is not None:
+            executed = executed + pool.relative.base(before_all[-1], executed.shape[1])
+        after, term, trunc, success, failed = pool.step(executed)
+        frames = stack(after)
+        after_all.append(frames)
+        next_obs = obs_spec.concat(frames)
+        out["obs"].append(obs)
+        out["next_obs"].append(next_obs)
+        obs = next_obs.copy()
+        for i in np.flatnonzero(term | trunc):  # reset: the next step starts from the new episode's frame
+            obs[i] = obs_spec.vector(pool.frames[i])
+        out["actions"].append(a)
+        out["logprobs"].append(logp)
+        out["terminated"].append(term)
+        out["truncated"].append(trunc)
+        out["success"].append(success)
+        out["features"].append(reward.features(frames, failed, options))
+    arrays = {k: np.stack(v) for k, v in out.items()}
+    task = arrays["features"] @ np.asarray(reward.weights)
+    return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=stack(before_all), next_frames=stack(after_all))
+
+
+def gae(rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray, terminated: np.ndarray,
+        dones: np.ndarray, gamma: float, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """Generalised advantage estimation over ``[T, N]`` arrays: ``(advantages, returns)``.
+
+    ``next_values`` are the critic's values of the states after each step (before any reset): a
+    truncated episode bootstraps from them, a terminated one does not, and no advantage flows across
+    an episode's end (``dones``)."""
+    adv = np.zeros_like(rewards, dtype=np.float64)
+    last = np.zeros(rewards.shape[1])
+    for t in reversed(range(len(rewards))):
+        delta = rewards[t] + gamma * next_values[t] * (1.0 - terminated[t]) - values[t]
+        last = delta + gamma * lam * (1.0 - dones[t]) * last
+        adv[t] = last
+    return adv, adv + values
+
+
+def ppo_losses(policy: GaussianPolicy, critic: nn.Module, obs: torch.Tensor, actions: torch.Tensor,
+               old_logprobs: torch.Tensor, advantages: torch.Tensor, returns: torch.Tensor,
+               clip: float) -> dict[str, torch.Tensor]:
+    """The clipped surrogate (to minimise), the value loss, the entropy and the approximate KL of one minibatch."""
+    dist = policy.distribution(obs)
+    logratio = dist.log_prob(actions).sum(-1) - old_logprobs
+    ratio = logratio.exp()
+    adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    surrogate = torch.max(-adv * ratio, -adv * ratio.clamp(1 - clip, 1 + clip)).mean()
+    value = 0.5 * ((critic(obs)[:, 0] - returns) ** 2).mean()
+    with torch.no_grad():
+        kl = ((ratio - 1) - logratio).mean()  # Schulman's low-variance estimator
+        clipped = ((ratio - 1).abs() > clip).float().mean()
+    return {"policy": surrogate, "value": value, "entropy": dist.entropy().sum(-1).mean(), "kl": kl,
+            "clip_fraction": clipped}
+
+
+def ppo_update(agent: Agent, obs_n: np.ndarray, actions: np.ndarray, logprobs: np.ndarray, advantages: np.ndarray,
+               returns: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
+    """``epochs`` passes of minibatch steps on one iteration's flattened transitions; the last stats."""
+    c = agent.config
+    t = {k: torch.from_numpy(np.asarray(v, np.float32).reshape(-1, *v.shape[2:]))
+         for k, v in (("obs", obs_n), ("actions", actions), ("logprobs", logprobs), ("adv", advantages),
+                      ("ret", returns))}
+    n = len(t["obs"])
+    size = n // c.minibatches
+    params = [*agent.policy.parameters(), *agent.critic.parameters()]
+    stats: dict[str, float] = {}
+    for _ in range(c.epochs):
+        order = torch.from_numpy(rng.permutation(n))
+        for start in range(0, size * c.minibatches, size):
+            idx = order[start:start + size]
+            losses = ppo_losses(agent.policy, agent.critic, t["obs"][idx], t["actions"][idx], t["logprobs"][idx],
+                                t["adv"][idx], t["ret"][idx], c.clip)
+            loss = losses["policy"] + c.vf_coef * losses["value"] - c.ent_coef * losses["entropy"]
+            agent.optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(params, c.max_grad_norm)
+            agent.optimizer.step()
+            stats = {k: float(v.detach()) for k, v in losses.items()}
+        if c.target_kl is not None and stats["kl"] > c.target_kl:
+            break
+    return stats
+
+
+# ====================================================================================== a run
+RewardFn = Callable[[Rollout], np.ndarray]
+
+
+class RLRun:
+    """A run directory trained by RL: environments, agent, the loop, checkpoints (module docstring).
+
+    ``name``: the algorithm recorded (``ppo``, ``gail``, ...); an algorithm adds what else the run
+    records (e.g. the demonstrations its reward was learned from) to :attr:`record` before :meth:`open`.
+    Ctrl-C saves a checkpoint of the last finished iteration."""
+
+    def __init__(self, config: PPOConfig, *, name: str = "ppo", progress: Progress | None = None,
+                 overwrite: bool = False, command: str | None = None):
+        from demo.sim.robot_record import robot_record
+        from demo.training.config import for_policy
+        from demo.training.trainer import TrainingRun
+
+        config.check()
+        self.config, self.name = config, name
+        tc = for_policy("ppo", out=config.out, seed=config.seed, threads=config.threads, device="cpu",
+                        eval_final=True, eval_episodes=config.eval_episodes)
+        self.run = TrainingRun(tc, progress=progress, overwrite=overwrite, command=command,
+                               total_steps=config.iterations * config.batch, name=name,
+                               title=f"{name} on {config.task}")
+        self.pool = EnvPool(config, config.num_envs)
+        self.reward = task_reward(config.task, "--task")
+        self.action_norm = action_bounds(config, self.pool.n_arm)
+        self.agent = Agent(config, self.pool.obs_spec.dim, self.pool.action_spec.dim)
+        self.rng = np.random.default_rng([config.seed, 0x990])
+        self.scaler = RewardScaler(config.num_envs, config.gamma)
+        self.steps = self.iteration = 0
+        self.metrics: dict[str, Any] = {"iterations": [], "eval": []}
+        env = self.pool.envs[0]
+        self.record = {
+            "algo": name,
+            "created": ckpt.now(),
+            "command": command,
+            "policy": ckpt.policy_record("ppo", self.agent.policy, self.pool.obs_spec, self.pool.action_spec,
+                                         ExecConfig(), self.pool.relative),
+            "task": {"name": config.task, "options": dict(env.sim.task_options), "horizon": int(env.horizon)},
+            "robot": robot_record(env.sim.robot),
+            "fps": env.sim.fps,
+            "data": None,
+            "train": config.to_json(),
+            "task_reward": self.reward.to_json(),
+            "versions": {"torch": torch.__version__, "numpy": np.__version__},
+        }
+        self._started = time.perf_counter()
+
+    def __enter__(self) -> "RLRun":
+        return self
+
+    def __exit__(self, kind: type | None, *exc: object) -> None:
+        try:
+            if kind is KeyboardInterrupt and self.iteration > 0 and (Path(self.config.out) / ckpt.RUN_FILE).is_file():
+                self.checkpoint()
+        finally:
+            self.pool.close()
+            self.run.__exit__(None)
+
+    def demonstrations(self, path: str, demos: int | None = None) -> Any:
+        """The first ``demos`` successful episodes of the store at ``path`` as transitions in this run's
+        units (:func:`demo.rl.expert_data.load_expert`), recorded as the run's data."""
+        from demo.rl.expert_data import load_expert
+
+        pool = self.pool
+        expert = load_expert(path, self.config.task, pool.config.task_options, pool.obs_spec, pool.action_spec,
+                             self.action_norm, pool.relative, self.reward, demos, pool.horizon)
+        self.record["data"] = expert.record(str(Path(path).resolve()))
+        return expert
+
+    def open(self) -> None:
+        """Create the run directory and record the run (refusing one that holds something else)."""
+        self.run.open_directory()
+        out = Path(self.config.out)
+        if self.record["robot"].get("files"):
+            ckpt.save_robot(out, self.record["robot"], self.record["robot"].get("source") or out)
+        ckpt.write_run(out, self.record)
+
+    # ---------------------------------------------------------------------------- the loop
+    def learn(self, reward: RewardFn | None = None, before_update: Callable[[Rollout], dict[str, float]] | None = None
+              ) -> None:
+        """Every remaining iteration (:meth:`iterate`), evaluating and saving on schedule."""
+        while self.iteration < self.config.iterations:
+            self.iterate(reward, before_update)
+
+    def iterate(self, reward: RewardFn | None = None, before_update: Callable[[Rollout], dict[str, float]] | None = None
+                ) -> Rollout:
+        """One iteration: collect, ``before_update`` (e.g. train a discriminator; returns figures to log),
+        rewards (``reward``, default the dense task reward), GAE, PPO update, statistics; evaluation
+        and a checkpoint every ``eval_every`` iterations and at the last."""
+        c, agent, pool = self.config, self.agent, self.pool
+        if not pool.frames:
+            pool.reset()
+        self.iteration += 1
+        it, t0 = self.iteration, time.perf_counter()
+        if c.anneal_lr:
+            for group in agent.optimizer.param_groups:
+                group["lr"] = c.lr * (1.0 - (it - 1) / c.iterations)
+        roll = collect(agent, pool, self.reward, self.action_norm, c.num_steps)
+        collect_s = time.perf_counter() - t0
+        self.steps += c.batch
+        extra = before_update(roll) if before_update is not None else {}
+        rewards = roll.task_reward if reward is None else reward(roll)
+        scaled = self.scaler(rewards, roll.dones) if c.norm_reward else rewards
+        obs_n, next_n = roll.normalized(roll.obs), roll.normalized(roll.next_obs)
+        adv, ret = gae(scaled, agent.values(obs_n), agent.values(next_n), roll.terminated, roll.dones,
+                       c.gamma, c.gae_lambda)
+        stats = ppo_update(agent, obs_n, roll.actions, roll.logprobs, adv, ret, self.rng)
+        agent.obs_rms.update(roll.obs.reshape(-1, roll.obs.shape[-1]))
+        agent.obs_norm = agent.obs_rms.normalizer()
+        entry = self._log(it, roll, rewards, stats, extra, collect_s, time.perf_counter() - t0)
+        if (c.eval_every and it % c.eval_every == 0) or it == c.iterations:
+            self.evaluate()
+            self.checkpoint()
+        self.run.tick(done=self.steps, loss=entry["loss_policy"], val="", success=f"{entry['success']:.0%}",
+                      info=f"return {'-' if entry['task_return'] is None else format(entry['task_return'], '.4g')}, "
+                           f"{entry['steps_per_s']:,.0f} steps/s")
+        return roll
+
+    def _log(self, it: int, roll: Rollout, rewards: np.ndarray, stats: dict[str, float], extra: dict[str, float],
+             collect_s: float, seconds: float) -> dict[str, Any]:
+        ends = roll.dones
+        per_episode = episode_sums(roll.task_reward, ends)
+        entry = {
+            "iteration": it,
+            "env_steps": self.steps,
+            "task_return": float(np.mean(per_episode)) if len(per_episode) else None,
+            "reward_return": float(np.mean(episode_sums(rewards, ends))) if ends.any() else None,
+            "success": float(roll.success[ends].mean()) if ends.any() else float(roll.success[-1].mean()),
+            # the task features at the episodes' ends (reach: position error m, rotation error rad, success)
+            "final_features": (roll.features[ends] if ends.any() else roll.features[-1]).mean(axis=0).tolist(),
+            # how well a learned reward follows the dense task reward over this rollout (Pearson)
+            "reward_corr": None if rewards is roll.task_reward else pearson(rewards, roll.task_reward),
+            "std": float(self.agent.policy.log_std.detach().exp().mean()),
+            "seconds": time.perf_counter() - self._started,
+            "steps_per_s": self.config.batch / max(collect_s, 1e-9),
+            "update_s": seconds - collect_s,
+            **{f"loss_{k}": v for k, v in stats.items()},
+            **extra,
+        }
+        self.metrics["iterations"].append(entry)
+        return entry
+
+    # ---------------------------------------------------------------------------- evaluation, saving
+    def bundle(self) -> ckpt.PolicyBundle:
+        """The current policy (its mean), runnable as ``demo eval`` runs a saved one."""
+        a = self.agent
+        return ckpt.PolicyBundle("ppo", a.policy.eval(), self.pool.obs_spec, a.obs_norm, self.action_norm,
+                                 self.pool.action_spec, ExecConfig(), self.record, Path(self.config.out),
+                                 self.pool.relative)
+
+    def evaluate(self) -> dict[str, Any] | None:
+        """Success of the policy's mean on the monitoring seeds (``eval_episodes``), as ``demo eval`` runs it."""
+        monitor = self.run.monitor
+        if monitor is None:
+            return None
+        result = monitor(self.bundle())
+        self.agent.policy.train()
+        entry = {"step": self.steps, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
+        self.metrics["eval"].append(entry)
+        self.run.tick(done=self.steps, success=f"{result['successes']}/{result['episodes']} (eval)")
+        return entry
+
+    def checkpoint(self, extra: dict[str, torch.Tensor] | None = None) -> None:
+        """The policy with its normalisers, the train state (critic, optimiser, statistics), metrics, curves."""
+        out, a = Path(self.config.out), self.agent
+        ckpt.save_policy(out, a.policy.state_dict(), a.obs_norm, self.action_norm)
+        ckpt.save_train_state(out, {"step": self.steps, "policy": a.policy.state_dict(),
+                                    "critic": a.critic.state_dict(), "optimizer": a.optimizer.state_dict(),
+                                    **a.obs_rms.state("obs_rms"), **(extra or {})})
+        ckpt.write_json(out / ckpt.METRICS_FILE, self.metrics)
+        plot_rl(self.metrics, out / ckpt.CURVES_FILE, title=f"{self.name} on {self.config.task}")
+
+    def finish(self, extra: dict[str, torch.Tensor] | None = None, **final: Any) -> dict[str, Any]:
+        last = self.metrics["eval"][-1] if self.metrics["eval"] else {}
+        tail = self.metrics["iterations"][-5:]
+        corr = {f"{k}_last5": float(np.mean([e[k] for e in tail])) for k in ("reward_corr", "g_corr")
+                if tail and all(e.get(k) is not None for e in tail)}
+        self.metrics["final"] = {"env_steps": self.steps, "seconds": time.perf_counter() - self._started,
+                                 "success_rate": last.get("success_rate"), "eval_episodes": last.get("episodes"),
+                                 **corr, **final}
+        ckpt.write_run(Path(self.config.out), self.record)
+        self.checkpoint(extra)
+        return {"out": self.config.out, "algo": self.name, **self.metrics["final"]}
+
+
+def episode_sums(values: np.ndarray, dones: np.ndarray) -> np.ndarray:
+    """Sums of ``values [T, N]`` over the episodes that end within the iteration (partial starts included)."""
+    sums, running = [], np.zeros(values.shape[1])
+    for t in range(len(values)):
+        running += values[t]
+        for i in np.flatnonzero(dones[t]):
+            sums.append(running[i])
+            running[i] = 0.0
+    return np.asarray(sums)
+
+
+def plot_rl(metrics: dict[str, Any], path: str | Path, title: str = "") -> Path:
+    """Episode return of the dense task reward, evaluation success (95% interval) and, for a learned reward,
+    its correlation with the dense one, against environment steps."""
+    from demo.figures import pyplot, save_figure
+
+    plt = pyplot()
+    its = [e for e in metrics.get("iterations", []) if e.get("task_return") is not None]
+    evals = metrics.get("eval") or []
+    corr = [k for k in ("reward_corr", "g_corr") if any(e.get(k) is not None for e in metrics.get("iterations", []))]
+    fig, axes = plt.subplots(1, 3 if corr else 2, figsize=(15 if corr else 10, 3.8))
+    ax, ax2 = axes[0], axes[1]
+    for k in corr:
+        pts = [(e["env_steps"], e[k]) for e in metrics["iterations"] if e.get(k) is not None]
+        axes[2].plot(*zip(*pts), lw=1.2, label={"reward_corr": "reward trained on", "g_corr": "AIRL g(s')"}[k])
+    if corr:
+        axes[2].set_xlabel("environment steps")
+        axes[2].set_ylabel("Pearson r with the dense task reward")
+        axes[2].set_ylim(-1.02, 1.02)
+        axes[2].grid(alpha=0.3)
+        axes[2].legend(fontsize=8)
+    if its:
+        ax.plot([e["env_steps"] for e in its], [e["task_return"] for e in its], lw=1.4)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("episode return (dense task reward)")
+    ax.grid(alpha=0.3)
+    if evals:
+        x = [e["step"] for e in evals]
+        ax2.fill_between(x, [e["ci95"][0] for e in evals], [e["ci95"][1] for e in evals], alpha=0.2)
+        ax2.plot(x, [e["success_rate"] for e in evals], "o-", lw=1.4)
+    ax2.set_ylim(-0.02, 1.02)
+    ax2.set_xlabel("environment steps")
+    ax2.set_ylabel(f"eval success ({evals[-1]['episodes'] if evals else '?'} episodes)")
+    ax2.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+# ====================================================================================== PPO on the task reward
+def learned_reward(run: str, rl: RLRun) -> tuple[RewardFn, dict[str, Any]]:
+    """The reward an IRL run learned, for RL in this run's setting (reward transfer): a linear reward
+    (``maxent``, ``apprenticeship``) over the same task features, or AIRL's ``g(s')`` on the same
+    observation vector; what the run records of it."""
+    record = ckpt.read_run(run)
+    linear = record.get("reward_weights")
+    if isinstance(linear, dict):
+        names = list(linear.get("features") or [])
+        if names != list(rl.reward.names):
+            raise DemoError(run, f"learned a reward over {names}; {rl.config.task}'s features are {list(rl.reward.names)}")
+        w = np.asarray(linear["weights"], np.float64)
+        return (lambda roll: roll.features @ w), {"run": str(run), "kind": record.get("algo"), "weights": w.tolist()}
+    adversarial = record.get("adversarial") or {}
+    if adversarial.get("kind") == "airl":
+        from demo.rl.adversarial import load_reward
+
+        disc, _ = load_reward(run)
+        try:
+            spec = ObsSpec.from_json(adversarial.get("disc_obs") or record["policy"]["obs"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DemoError(run, f"malformed discriminator observation record ({exc})") from None
+        spec.check_against(rl.pool.envs[0].features, f"{rl.config.task} environment (AIRL's g(s) of {run})")
+
+        def g(roll: Rollout) -> np.ndarray:
+            with torch.no_grad():
+                x = torch.from_numpy(roll.vectors(spec, after=True).astype(np.float32))
+                return disc.reward_g(x).numpy().reshape(roll.task_reward.shape)
+
+        return g, {"run": str(run), "kind": "airl", "reward": "g(s')", "obs_keys": list(spec.keys)}
+    raise DemoError(run, "holds no learned reward (a maxent, apprenticeship or airl run does)")
+
+
+def train(config: PPOConfig, *, progress: Progress | None = None, overwrite: bool = False,
+          command: str | None = None) -> dict[str, Any]:
+    """PPO into the run directory ``config.out`` on the dense task reward (``reward="task"``) or on the
+    reward learned by the IRL run ``config.reward`` (:func:`learned_reward`); returns the summary."""
+    with RLRun(config, name="ppo", progress=progress, overwrite=overwrite, command=command) as rl:
+        reward, learned = None, None
+        if config.reward != "task":
+            reward, learned = learned_reward(config.reward, rl)
+            rl.record["learned_reward"] = learned
+        rl.open()
+        rl.learn(reward)
+        return rl.finish()

@@ -1,0 +1,165 @@
+"""DAgger on reach: visited states are aggregated with the expert's labels, and labels are counted."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.errors import DemoError
+from demo.sim import make_env
+from demo.store import EpisodeStore
+from demo.training.config import TrainConfig
+from demo.training.data import LABEL_KEY, frame_indices, prepare
+from demo.imitation.dagger import DaggerConfig, train_dagger
+
+torch.set_num_threads(1)
+REACH = {"pos_tol": 0.04, "rot_tol": 0.4}
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("dagger") / "reach.zarr"
+    collect_scripted(CollectConfig(task="reach", episodes=8, seed=0, task_options=REACH), path, workers=0)
+    return path
+
+
+def dagger(demos: Path, out: Path, **kw) -> dict:
+    tc = TrainConfig(data=str(demos), out=str(out), steps=150, batch_size=64, chunk=2, policy={"hidden": (64, 64)},
+                     val_fraction=0.25, log_every=50, val_every=50)
+    config = DaggerConfig(train=tc, rounds=2, episodes_per_round=2, round_steps=60, **kw)
+    return train_dagger(config)
+
+
+def test_dagger_aggregates_expert_labelled_states(demos: Path, tmp_path: Path) -> None:
+    summary = dagger(demos, tmp_path / "run")
+    store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
+    with EpisodeStore.open(demos) as source:
+        assert store.num_episodes == source.num_episodes + 4  # the source is copied, never modified
+        demo_frames = source.num_frames
+    rounds = store.column("dagger_round")
+    assert rounds.tolist() == [0] * 8 + [1, 1, 2, 2]
+    assert store.column("source")[8:].tolist() == ["dagger"] * 4
+    new = np.flatnonzero(rounds >= 1)
+    lengths = store.episode_lengths[new]
+    # Plain DAgger: every visited state is a label; the count is demos (train + val) + rollout frames.
+    assert store.column("labels")[new].tolist() == lengths.tolist()
+    assert summary["expert_labels"] == demo_frames + int(lengths.sum())
+    assert [r["labels_total"] for r in summary["rounds"]] == [
+        demo_frames, demo_frames + int(lengths[:2].sum()), demo_frames + int(lengths.sum())]
+    # Each label is what the expert does in that recorded state (it is a state-feedback policy; its IK
+    # warm start makes a re-query differ by a few mrad), not what the learner executed there.
+    env = make_env("reach", **REACH)
+    for i in new[:2]:
+        ep = store.read_episode(int(i))
+        assert ep[LABEL_KEY].all()
+        expert = env.expert()
+        for t in (0, len(ep["action"]) // 2, len(ep["action"]) - 1):
+            env.set_state(ep["sim.state"][t])
+            assert np.abs(expert.act(env) - ep["action"][t]).max() < 0.02
+    # With beta = 0 the learner drives: what was executed is not the label.
+    ep = store.read_episode(int(new[0]))
+    assert not np.allclose(ep["info.executed_action"], ep["action"], atol=1e-3)
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["algo"] == "dagger" and run["data"]["expert_labels"] == summary["expert_labels"]
+    assert (tmp_path / "run" / "policy.safetensors").exists() and (tmp_path / "run" / "curves.png").exists()
+
+
+def test_beta_one_executes_the_expert(demos: Path, tmp_path: Path) -> None:
+    dagger(demos, tmp_path / "run", beta="linear:1000000")
+    store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
+    for i in np.flatnonzero(store.column("dagger_round") >= 1):
+        ep = store.read_episode(int(i))
+        assert np.allclose(ep["info.executed_action"], ep["action"])
+
+
+def test_hg_dagger_labels_only_interventions(demos: Path, tmp_path: Path) -> None:
+    summary = dagger(demos, tmp_path / "run", gate="deviation:0.06")
+    store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
+    new = np.flatnonzero(store.column("dagger_round") >= 1)
+    total = 0
+    for i in new:
+        ep = store.read_episode(int(i))
+        flags = ep[LABEL_KEY].astype(bool)
+        total += int(flags.sum())
+        assert int(store.column("labels")[i]) == int(flags.sum())
+        # The expert executed exactly where it labelled.
+        same = np.all(np.isclose(ep["info.executed_action"], ep["action"]), axis=1)
+        assert np.array_equal(same, flags)
+    assert 0 < total < store.episode_lengths[new].sum()
+    with EpisodeStore.open(demos) as source:
+        assert summary["expert_labels"] == source.num_frames + total
+
+
+def test_bad_schedules_and_tasks_fail_clearly(demos: Path, tmp_path: Path) -> None:
+    with pytest.raises(DemoError, match="--beta"):
+        dagger(demos, tmp_path / "a", beta="cosine:3")
+    with pytest.raises(DemoError, match="--gate"):
+        dagger(demos, tmp_path / "b", gate="deviation:-1")
+    with pytest.raises(DemoError, match="holds 'reach' demonstrations"):
+        dagger(demos, tmp_path / "c", task="pick")
+
+
+def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tmp_path: Path) -> None:
+    """An early learner's flailing rollouts must not stretch the input ranges the states that matter live in."""
+    from demo.policies.checkpoint import load_bundle
+
+    dagger(demos, tmp_path / "keep")
+    dagger(demos, tmp_path / "refit", refit_normalizers=True)
+    keep, refit = load_bundle(tmp_path / "keep"), load_bundle(tmp_path / "refit")
+    store = EpisodeStore.open(tmp_path / "keep" / "data.zarr")
+    rounds = store.column("dagger_round")
+    tc = TrainConfig(data=str(tmp_path / "keep" / "data.zarr"), out="", val_fraction=0.25).resolved()
+    s0 = prepare(tc, store, among=np.flatnonzero(rounds == 0))
+    np.testing.assert_array_equal(keep.obs_norm.low, s0.obs_norm.low)
+    np.testing.assert_array_equal(keep.obs_norm.high, s0.obs_norm.high)
+    # Refit: the ranges are those of every training frame of the aggregate, rollouts included.
+    from demo.policies.normalizer import MinMaxNormalizer
+
+    agg = EpisodeStore.open(tmp_path / "refit" / "data.zarr")
+    obs = s0.obs_spec.concat(agg.load(s0.obs_spec.source_keys)[0])
+    train_eps = np.union1d(s0.train_episodes, np.flatnonzero(agg.column("dagger_round") >= 1))
+    fitted = MinMaxNormalizer.fit(obs[frame_indices(agg.episode_ends, train_eps)])
+    np.testing.assert_allclose(refit.obs_norm.low, fitted.low, atol=1e-6)
+    assert (fitted.low < keep.obs_norm.low - 1e-3).any()  # the rollouts did leave the demonstrations' ranges
+
+
+def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
+    """A learner that moves the arm as the expert does but leaves the gripper wrong is taken over."""
+    from demo.imitation.dagger import dagger_episode
+
+    env = make_env("reach", **REACH)
+
+    class ArmOnly:  # the expert's arm targets, the opposite gripper command
+        def reset(self, seed: int, env_: object) -> None:
+            self.expert = env.expert()
+
+        def act(self, frame: dict) -> np.ndarray:
+            a = np.asarray(self.expert.act(env), dtype=np.float32).copy()
+            a[-1] = 1.0 - a[-1]
+            return a
+
+    n_arm = len(env.robot.arm_joints)
+    data, info = dagger_episode(env, ArmOnly(), seed=5, beta=0.0, gate=0.05, n_arm=n_arm)
+    flags = data[LABEL_KEY].astype(bool)
+    assert flags.all() and info["labels"] == len(flags)
+
+
+def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) -> None:
+    """A resumed run needs only its directory: the source store may be gone."""
+    import shutil
+
+    source = tmp_path / "source.zarr"
+    shutil.copytree(demos, source)
+    tc = TrainConfig(data=str(source), out=str(tmp_path / "run"), steps=60, batch_size=64, policy={"hidden": (32,)},
+                     val_fraction=0.25, log_every=20, val_every=20)
+    train_dagger(DaggerConfig(train=tc, rounds=1, episodes_per_round=1, round_steps=20))
+    shutil.rmtree(source)
+    summary = train_dagger(DaggerConfig(train=tc, rounds=2, episodes_per_round=1, round_steps=20), resume=True)
+    assert [r["round"] for r in summary["rounds"]] == [0, 1, 2] and summary["step"] == 60 + 2 * 20
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
+        assert store.column("dagger_round").tolist() == [0] * 8 + [1, 2]

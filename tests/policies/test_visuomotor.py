@@ -1,0 +1,91 @@
+"""Visuomotor policies end to end: a pick store with two cameras -> BC / diffusion / DAgger from images."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.errors import DemoError
+from demo.store import EpisodeStore
+from demo.policies import checkpoint as ckpt
+from demo.imitation.bc import train
+from demo.training.config import TrainConfig
+from demo.imitation.dagger import DaggerConfig, train_dagger
+from demo.evaluation.evaluate import EvalConfig, evaluate
+
+CAMERAS = (("front", 32, 32), ("wrist", 32, 24))  # (name, width, height): sizes may differ per camera
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("vis") / "pick.zarr"
+    collect_scripted(CollectConfig(task="pick", episodes=4, seed=0, cameras=CAMERAS), path, workers=0)
+    return path
+
+
+def tiny(store: Path, out: Path, **changes) -> TrainConfig:
+    base = dict(data=str(store), out=str(out), steps=20, batch_size=8, chunk=4, log_every=10, val_every=10,
+                policy={"hidden": (32,)}, encoder={"keypoints": 8, "features": 16})
+    return TrainConfig(**{**base, **changes})
+
+
+def test_bc_trains_on_images_and_proprioception_and_runs_in_the_simulator(store: Path, tmp_path: Path) -> None:
+    summary = train(tiny(store, tmp_path / "run"))
+    assert np.isfinite(summary["train_loss"])
+    policy = json.loads((tmp_path / "run" / ckpt.RUN_FILE).read_text())["policy"]
+    # Cameras + the robot's own sensors; object poses are withheld unless asked for.
+    assert policy["obs"]["images"] == {"obs.image_front": [32, 32, 3], "obs.image_wrist": [24, 32, 3]}
+    assert policy["obs"]["keys"] == ["obs.joint_pos", "obs.gripper", "obs.ee_pos", "obs.ee_quat"]
+    assert policy["encoder"]["backbone"] == "small" and policy["spec"]["images"][1] == ["obs.image_wrist", 24, 32]
+    bundle = ckpt.load_bundle(tmp_path / "run")
+    assert bundle.obs_spec.cameras() == [("front", 32, 32), ("wrist", 32, 24)]
+    # The evaluation environment renders the cameras the policy reads; rollouts run end to end.
+    result = evaluate(EvalConfig(run=str(tmp_path / "run"), episodes=2, device="cpu"))
+    assert result["episodes"] == 2 and result["device"] == "cpu"
+    assert all(d["length"] > 0 for d in result["episodes_detail"])
+
+
+def test_same_seed_same_weights_and_crops_only_in_training(store: Path, tmp_path: Path) -> None:
+    train(tiny(store, tmp_path / "a", steps=6))
+    train(tiny(store, tmp_path / "b", steps=6))
+    a = (tmp_path / "a" / ckpt.POLICY_FILE).read_bytes()
+    assert a == (tmp_path / "b" / ckpt.POLICY_FILE).read_bytes()
+    bundle = ckpt.load_bundle(tmp_path / "a")
+    with EpisodeStore.open(store) as s:
+        arrays, _ = s.load(["obs.image_front", "obs.image_wrist"])
+    obs = {"state": torch.zeros(2, 1, bundle.obs_spec.dim),
+           "obs.image_front": torch.from_numpy(arrays["obs.image_front"][:2, None]),
+           "obs.image_wrist": torch.from_numpy(arrays["obs.image_wrist"][:2, None])}
+    # Evaluation sees the centre crop: the same answer twice.
+    assert torch.equal(bundle.policy.predict(obs), bundle.policy.predict(obs))
+
+
+def test_one_camera_and_object_state_on_request(store: Path, tmp_path: Path) -> None:
+    train(tiny(store, tmp_path / "run", obs_keys=("obs.image_wrist", "proprio", "obs.object_pos")))
+    obs = json.loads((tmp_path / "run" / ckpt.RUN_FILE).read_text())["policy"]["obs"]
+    assert list(obs["images"]) == ["obs.image_wrist"] and "obs.object_pos" in obs["keys"]
+    with pytest.raises(DemoError, match="--encoder"):
+        train(tiny(store, tmp_path / "bad", encoder={"backbone": "vgg"}))
+
+
+def test_diffusion_trains_on_images(store: Path, tmp_path: Path) -> None:
+    summary = train(tiny(store, tmp_path / "run", algo="diffusion", steps=10, n_obs=2, chunk=8, execute=4,
+                         policy={"width": 32, "depth": 1}))
+    assert np.isfinite(summary["train_loss"])
+    result = evaluate(EvalConfig(run=str(tmp_path / "run"), episodes=1, device="cpu"))
+    assert result["episodes"] == 1
+
+
+def test_pixel_dagger_labels_the_states_the_pixel_policy_visits(store: Path, tmp_path: Path) -> None:
+    config = DaggerConfig(train=tiny(store, tmp_path / "run", chunk=1), rounds=1, episodes_per_round=1, round_steps=5)
+    summary = train_dagger(config)
+    assert summary["rounds"][-1]["labels_total"] > summary["rounds"][0]["labels_total"]
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as agg:
+        assert agg.num_episodes == 5  # 4 demonstrations + 1 labelled rollout, images included
+        images, _ = agg.load(["obs.image_wrist"])
+        assert images["obs.image_wrist"].shape[1:] == (24, 32, 3) and images["obs.image_wrist"].any()

@@ -1,0 +1,78 @@
+"""The training run: resume is bit-exact, run directories are protected, bad input fails before any write."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import pytest
+import torch
+
+from demo.errors import DemoError
+from demo.progress import Tick
+from demo.policies import checkpoint as ckpt
+from demo.imitation.bc import train
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory, synthetic_store) -> Path:
+    return synthetic_store(tmp_path_factory.mktemp("trainer") / "data.zarr")
+
+
+def test_resume_continues_bit_exactly(data: Path, tmp_path: Path, tiny_bc_config) -> None:
+    config = functools.partial(tiny_bc_config, steps=80, log_every=20, val_every=40)
+    straight = config(data, tmp_path / "straight", steps=80, ema=0.9, obs_noise=0.01)
+    train(straight)
+    split = config(data, tmp_path / "split", steps=80, ema=0.9, obs_noise=0.01)
+    train(split, stop_at=30)
+    assert ckpt.load_train_state(tmp_path / "split")["step"] == 30
+    train(split, resume=True)
+    a = ckpt.load_train_state(tmp_path / "straight")
+    b = ckpt.load_train_state(tmp_path / "split")
+    assert b["step"] == 80
+    for key in a["policy"]:
+        assert torch.equal(a["policy"][key], b["policy"][key]), key
+        assert torch.equal(a["ema"][key], b["ema"][key]), key
+
+
+def test_run_directory_is_protected(data: Path, tmp_path: Path, tiny_bc_config) -> None:
+    config = functools.partial(tiny_bc_config, steps=80, log_every=20, val_every=40)
+    train(config(data, tmp_path / "run", steps=5))
+    with pytest.raises(DemoError, match="already exists"):
+        train(config(data, tmp_path / "run", steps=5))
+    with pytest.raises(DemoError, match="cannot resume with a different chunk"):
+        train(config(data, tmp_path / "run", steps=10, chunk=2), resume=True)
+    with pytest.raises(DemoError, match="nothing to resume"):
+        train(config(data, tmp_path / "fresh", steps=5), resume=True)
+    (tmp_path / "notarun").mkdir()
+    (tmp_path / "notarun" / "precious.txt").write_text("keep me")
+    with pytest.raises(DemoError, match="not a training run"):
+        train(config(data, tmp_path / "notarun", steps=5), overwrite=True)
+    assert (tmp_path / "notarun" / "precious.txt").exists()
+
+
+def test_bad_options_fail_before_training(data: Path, tmp_path: Path, tiny_bc_config) -> None:
+    config = functools.partial(tiny_bc_config, steps=80, log_every=20, val_every=40)
+    with pytest.raises(DemoError, match="--execute"):
+        train(config(data, tmp_path / "r", chunk=2, execute=3))
+    with pytest.raises(DemoError, match="has no observation 'obs.nope'"):
+        train(config(data, tmp_path / "r", obs_keys=("obs.nope",)))
+    with pytest.raises(DemoError, match="has no camera image 'obs.image_front'"):
+        train(config(data, tmp_path / "r", obs_keys=("obs.image_front",)))
+    with pytest.raises(DemoError, match="not a low-dimensional"):
+        train(config(data, tmp_path / "r", obs_keys=("obs.joint_pos", "action")))
+    with pytest.raises(DemoError, match="unknown policy"):
+        train(config(data, tmp_path / "r", algo="transformer"))
+    assert not (tmp_path / "r").exists()
+
+
+def test_progress_reports_steps_and_losses(data: Path, tmp_path: Path, tiny_bc_config) -> None:
+    config = functools.partial(tiny_bc_config, steps=80, log_every=20, val_every=40)
+    ticks: list[Tick] = []
+    train(config(data, tmp_path / "run", steps=40), progress=ticks.append)
+    assert {t.stage for t in ticks} == {"train bc"} and all(t.total == 40 for t in ticks)
+    done = [t.done for t in ticks if t.done is not None]
+    assert done == sorted(done) and done[-1] == 40
+    assert ticks[-1].fields["loss"] != "-" and ticks[-1].fields["val"] != "-"

@@ -1,0 +1,361 @@
+"""Training data: store -> split -> normalisers -> windows, shared by every algorithm.
+
+:func:`prepare` reads top to bottom:
+
+1. **observations**: the store's low-dim ``obs.*`` keys are concatenated per frame (:class:`ObsSpec`);
+2. **split**: episodes into training and validation (a store mask ``val_mask``, or a seeded random
+   ``val_fraction`` of the episodes); failed episodes are left out unless ``include_failures``;
+3. **normalisers**: min-max to [-1, 1] for observations and actions, fitted on the training frames
+   (actions over every step of every training window, relative to the query frame when actions
+   are relative, :mod:`demo.policies.relative`) and stored with the policy;
+4. **windows**: :class:`Windows` over the normalised arrays gives observation histories
+   ``[B, n_obs, D]`` and action chunks ``[B, chunk, A]``, padded at episode edges
+   (:class:`demo.store.WindowSampler`). With cameras, an observation is a dict: the vector under
+   ``"state"`` and each camera's uint8 images ``[B, n_obs, H, W, 3]`` under its key; images stay
+   bytes in memory and become floats in the policy's encoder (:mod:`demo.policies.visuomotor`).
+
+Frames may carry a per-frame expert-label flag (:data:`LABEL_KEY`, written by DAgger): windows then
+start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss).
+
+:func:`prepare_union` trains on several stores as one (e.g. the same task on two arms, both in
+``ee7``): frames concatenated store after store (episode ends offset), each store split with the
+seed on its own, the normalisers fitted on the union's training frames. The stores must share the
+task, the rate, the action representation and the chosen observations' shapes (:func:`check_union`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.store import EpisodeStore, WindowSampler
+from demo.training.config import TrainConfig
+from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
+from demo.policies.observation import STATE, ObsSpec
+from demo.policies.policy import PolicySpec
+from demo.policies.relative import RelativeActions, default_relative
+
+LABEL_KEY = "info.labelled"  # optional per-frame flag: this frame's action is an expert label
+VALIDATION_WINDOWS = 4096  # windows of the fixed validation batch
+VALIDATION_WINDOWS_IMAGES = 512  # with cameras: a validation pass stays a few seconds of encoder time
+MIN_TRAIN_EPISODES = 2  # below this a policy sees one trajectory: refused, not trained silently
+
+_UNIT = MinMaxNormalizer.from_limits(np.full(1, -1.0, np.float32), np.ones(1, np.float32))  # placeholder until fitted
+Observation = torch.Tensor | dict[str, torch.Tensor]  # [B, n_obs, D], or {"state": that, camera key: uint8 [B, n_obs, H, W, 3]}
+Batch = tuple[Observation, torch.Tensor, torch.Tensor]  # obs, action [B, H, A], action_pad [B, H]
+# Observations every arm reports in the same frame and units (scene frame, m, closedness): a union of
+# arms with different joints trains on these (with the object's offset from the EE, see ObsSpec).
+ROBOT_AGNOSTIC_KEYS = ("obs.ee_pos", "obs.ee_quat", "obs.gripper", "obs.object_pos", "obs.object_quat",
+                       "obs.object_pos-obs.ee_pos")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One store of the training data: its episodes are ``first_episode ..`` in the concatenation."""
+
+    path: str
+    first_episode: int
+    episodes: int
+
+
+def batch_slice(batch: Batch, start: int, stop: int) -> Batch:
+    """Windows ``start:stop`` of a batch."""
+    obs, action, pad = batch
+    part = {k: v[start:stop] for k, v in obs.items()} if isinstance(obs, dict) else obs[start:stop]
+    return part, action[start:stop], pad[start:stop]
+
+
+def batch_to(batch: Batch, device: torch.device) -> Batch:
+    """The batch on ``device`` (a no-op on the CPU)."""
+    if device.type == "cpu":
+        return batch
+    obs, action, pad = batch
+    moved = {k: v.to(device, non_blocking=True) for k, v in obs.items()} if isinstance(obs, dict) else obs.to(device, non_blocking=True)
+    return moved, action.to(device, non_blocking=True), pad.to(device, non_blocking=True)
+
+
+@dataclass
+class TrainingData:
+    """A store's frames in memory with their split, normalisers and the shapes of the policy.
+
+    Observations are normalised; actions stay raw, since their normalised form depends on the
+    window's query frame when they are relative.
+    """
+
+    obs: np.ndarray  # [N, D] normalised observations (clipped to +-OBS_CLIP, as the actor does)
+    action: np.ndarray  # [N, A] raw actions (the store's representation and units)
+    base: np.ndarray | None  # [N, A] subtracted from the actions of windows queried at each frame; None = absolute
+    ends: np.ndarray  # cumulative episode ends (every store episode)
+    labelled: np.ndarray | None  # [N] bool, frames holding an expert label; None = every frame
+    train_episodes: np.ndarray
+    val_episodes: np.ndarray
+    obs_spec: ObsSpec
+    obs_norm: MinMaxNormalizer
+    action_norm: MinMaxNormalizer
+    relative: RelativeActions | None
+    spec: PolicySpec  # obs_dim, action_dim, n_obs, horizon (= chunk), cameras
+    images: dict[str, np.ndarray] = field(default_factory=dict)  # camera key -> [N, H, W, 3] uint8; none = state only
+    sources: tuple[Source, ...] = ()  # the stores, in concatenation order (one unless a union)
+
+    def frames(self, episodes: np.ndarray) -> int:
+        """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
+        starts = np.concatenate([[0], self.ends[:-1]])
+        if self.labelled is None:
+            return int((self.ends[episodes] - starts[episodes]).sum())
+        return int(sum(self.labelled[starts[i] : self.ends[i]].sum() for i in episodes))
+
+    def windows(self, episodes: np.ndarray) -> "Windows":
+        return Windows(self, episodes)
+
+    def validation_batch(self, seed: int) -> Batch | None:
+        """The fixed validation windows (up to :data:`VALIDATION_WINDOWS`), or None without any."""
+        return self.windows(self.val_episodes).fixed(VALIDATION_WINDOWS_IMAGES if self.images else VALIDATION_WINDOWS, seed)
+
+    def reload(self, store: EpisodeStore, train_episodes: np.ndarray, val_episodes: np.ndarray) -> "TrainingData":
+        """The store's frames now (it may have grown) with another split and *these* normalisers."""
+        raw = _load_arrays(store, self.obs_spec, self.relative)
+        return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
+                       ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
+                       sources=(Source(str(store.path), 0, len(raw[3])),))
+
+
+def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
+            split: tuple[np.ndarray, np.ndarray] | None = None) -> TrainingData:
+    """Steps 1-3 for a resolved ``config``: split drawn from ``among`` (default: all episodes) or given.
+
+    Refuses (DemoError) a training split below the minimum: :data:`MIN_TRAIN_EPISODES` episodes and
+    one window's worth of labelled frames, ``n_obs + chunk - 1``.
+    """
+    obs_spec = ObsSpec.from_features(store.meta.features, config.obs_keys or None, str(store.path))
+    relative = default_relative(store.meta) if config.relative_actions else None
+    split = split if split is not None else split_episodes(store, config, among)
+    return _assemble(config, [store], [split], obs_spec, relative)
+
+
+def prepare_union(config: TrainConfig, stores: Sequence[EpisodeStore]) -> TrainingData:
+    """Steps 1-3 on several stores as one (one store: :func:`prepare`): frames concatenated store after
+    store, each store's episodes split with the seed on its own (``val_fraction`` or ``val_mask`` of
+    each), normalisers fitted on the union's training frames. Refuses stores that cannot share a
+    policy (:func:`check_union`), naming the store at fault."""
+    if len(stores) == 1:
+        return prepare(config, stores[0])
+    paths = [s.path.resolve() for s in stores]
+    twice = next((s.path for s, p in zip(stores, paths) if paths.count(p) > 1), None)
+    if twice is not None:
+        raise DemoError(twice, "is named twice; a union takes each store once")
+    first = stores[0]
+    obs_spec = ObsSpec.from_features(first.meta.features, config.obs_keys or None, str(first.path))
+    for store in stores[1:]:
+        check_union(first, store, obs_spec)
+    relative = default_relative(first.meta) if config.relative_actions else None
+    return _assemble(config, stores, [split_episodes(store, config) for store in stores], obs_spec, relative)
+
+
+@contextlib.contextmanager
+def open_stores(paths: Sequence[str]) -> Iterator[list[EpisodeStore]]:
+    """The stores at ``paths``, open for reading until the block ends."""
+    with contextlib.ExitStack() as stack:
+        yield [stack.enter_context(EpisodeStore.open(p)) for p in paths]
+
+
+def check_union(first: EpisodeStore, store: EpisodeStore, obs_spec: ObsSpec) -> None:
+    """Refuse (one DemoError naming ``store``) a store that cannot share a policy with ``first``:
+    another task or rate, another action representation (joint-space actions of arms with other
+    joints included), or observations ``obs_spec`` reads that it lacks or holds in another shape."""
+    a, b, where = first.meta, store.meta, store.path
+    convert = "convert every store with `demo convert STORE --to ee7 --out ...`"
+    task_a, task_b = a.task or {}, b.task or {}
+    if (task_a.get("name"), task_a.get("options")) != (task_b.get("name"), task_b.get("options")):
+        raise DemoError(where, f"holds task {task_b.get('name')!r} {task_b.get('options') or ''}, {first.path} "
+                               f"{task_a.get('name')!r} {task_a.get('options') or ''}: one policy trains on one task")
+    if a.fps != b.fps:
+        raise DemoError(where, f"runs at {b.fps} Hz, {first.path} at {a.fps} Hz: one policy acts at one rate")
+    if a.action.to_json() != b.action.to_json():
+        if a.action.frame == "joint" and b.action.frame == "joint":
+            mine, theirs = (list(x.action.params.get("arm_joints") or x.action.names) for x in (b, a))
+            raise DemoError(where, f"{b.action.name} actions of {len(mine)} joints ({', '.join(mine)}) cannot share a "
+                                   f"policy with {first.path}'s {len(theirs)} joints ({', '.join(theirs)}): joint-space "
+                                   f"actions of arms with different joints cannot share a policy; {convert}")
+        raise DemoError(where, f"holds {b.action.name} actions ({b.action.dim} values), {first.path} {a.action.name} "
+                               f"({a.action.dim}): one policy outputs one action representation; {convert}")
+    hint = f"choose observations every robot reports, e.g. --obs-keys {','.join(ROBOT_AGNOSTIC_KEYS)}"
+    try:
+        theirs = ObsSpec.from_features(b.features, list(obs_spec.keys) + list(obs_spec.images), str(where))
+    except DemoError as exc:
+        raise DemoError(where, f"{exc.problem}; {hint}") from None
+    pairs = zip((*obs_spec.keys, *obs_spec.images), (*obs_spec.dims, *obs_spec.image_shapes), (*theirs.dims, *theirs.image_shapes))
+    for key, mine, other in pairs:
+        if mine != other:
+            source = key.partition("-")[0]  # a difference "obs.a-obs.b" has obs.a's shape
+            raise DemoError(where, f"observation {source} is {tuple(b.features[source].shape)} here and "
+                                   f"{tuple(a.features[source].shape)} in {first.path}; {hint}")
+
+
+def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Sequence[tuple[np.ndarray, np.ndarray]],
+              obs_spec: ObsSpec, relative: RelativeActions | None) -> TrainingData:
+    """The stores' frames one after another with their splits (episode indices offset), the
+    minimum checked, normalisers fitted on the training frames of all of them."""
+    parts = [_load_arrays(store, obs_spec, relative) for store in stores]
+    first_episode = np.cumsum([0] + [len(p[3]) for p in parts])
+    first_frame = np.cumsum([0] + [int(p[3][-1]) if len(p[3]) else 0 for p in parts])
+    obs, action = _join([p[0] for p in parts]), _join([p[1] for p in parts])
+    base = None if relative is None else _join([p[2] for p in parts])
+    ends = _join([p[3] + first_frame[i] for i, p in enumerate(parts)])
+    labelled = None
+    if any(p[4] is not None for p in parts):  # a store without label flags is labelled throughout
+        labelled = _join([p[4] if p[4] is not None else np.ones(len(p[1]), bool) for p in parts])
+    images = {k: _join([p[5][k] for p in parts]) for k in obs_spec.images}
+    train_eps = _join([s[0] + first_episode[i] for i, s in enumerate(splits)])
+    val_eps = _join([s[1] + first_episode[i] for i, s in enumerate(splits)])
+    sources = tuple(Source(str(s.path), int(first_episode[i]), len(p[3])) for i, (s, p) in enumerate(zip(stores, parts)))
+    frames = frame_indices(ends, train_eps)
+    if labelled is not None:
+        frames = frames[labelled[frames]]
+    window = config.n_obs + config.chunk - 1
+    if len(train_eps) < MIN_TRAIN_EPISODES or len(frames) < window:
+        where = ", ".join(str(s.path) for s in stores)
+        raise DemoError(where, f"too little to train on: {len(train_eps)} training episode(s) with {len(frames)} "
+                               f"labelled frame(s); the minimum is {MIN_TRAIN_EPISODES} episodes and one window "
+                               f"of {window} frames (n_obs {config.n_obs} + chunk {config.chunk} - 1)")
+    obs_norm = MinMaxNormalizer.fit(obs[frames])
+    cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
+    spec = PolicySpec(obs_spec.dim, stores[0].meta.action.dim, config.n_obs, config.chunk, cameras)
+    data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
+                        obs_norm, _UNIT, relative, spec, images, sources)
+    data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
+    return data
+
+
+def _join(arrays: list[np.ndarray]) -> np.ndarray:
+    """``arrays`` one after another (the one array itself, uncopied, when there is one)."""
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+
+def split_episodes(store: EpisodeStore, config: TrainConfig, among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Training and validation episode indices (disjoint, sorted), from ``among`` (default: all)."""
+    candidates = store.select(config.train_mask) if config.train_mask else np.arange(store.num_episodes)
+    if among is not None:
+        candidates = np.intersect1d(candidates, among)
+    if not config.include_failures and store.num_episodes:
+        ok = store.column("success").astype(bool)
+        candidates = candidates[ok[candidates]]
+    if config.val_mask:
+        val = np.intersect1d(store.select(config.val_mask), np.arange(store.num_episodes))
+        train = np.setdiff1d(candidates, val)
+    else:
+        n_val = int(round(config.val_fraction * len(candidates)))
+        if config.val_fraction > 0 and len(candidates) >= 4:
+            n_val = max(1, n_val)
+        perm = np.random.default_rng([config.seed, 0x5E1]).permutation(len(candidates))
+        val = np.sort(candidates[perm[:n_val]])
+        train = np.sort(candidates[perm[n_val:]])
+    if len(train) == 0:
+        raise DemoError(store.path, "has no episodes left to train on (check --train-mask/--val-mask/--include-failures)")
+    return train, np.sort(val)
+
+
+def frame_indices(ends: np.ndarray, episodes: np.ndarray) -> np.ndarray:
+    """Indices of every frame of ``episodes`` (ends: cumulative episode ends)."""
+    starts = np.concatenate([[0], ends[:-1]])
+    return np.concatenate([np.arange(starts[i], ends[i]) for i in episodes]) if len(episodes) else np.zeros(0, np.int64)
+
+
+def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None):
+    """Concatenated observations, actions, relative-action bases, episode ends, label flags, images."""
+    keys = [*obs_spec.source_keys, *obs_spec.images, "action"] + ([LABEL_KEY] if LABEL_KEY in store.meta.features else [])
+    if relative is not None and relative.obs_key not in keys:
+        keys.append(relative.obs_key)
+    arrays, ends = store.load(keys)
+    labelled = arrays[LABEL_KEY].reshape(-1).astype(bool) if LABEL_KEY in arrays else None
+    action = np.asarray(arrays["action"], dtype=np.float32)
+    base = relative.base(arrays, action.shape[1]) if relative is not None else None
+    images = {k: np.ascontiguousarray(arrays[k], dtype=np.uint8) for k in obs_spec.images}
+    return obs_spec.concat(arrays), action, base, ends, labelled, images
+
+
+def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:
+    return np.clip(norm.normalize(obs), -OBS_CLIP, OBS_CLIP)  # as the actor does in rollouts
+
+
+def _fit_action_normalizer(data: TrainingData) -> MinMaxNormalizer:
+    """Min-max over every action of every training window (chunk steps included)."""
+    lo, hi = chunk_action_limits(data, normalized=False)
+    return MinMaxNormalizer.from_limits(lo.min(axis=0), hi.max(axis=0))
+
+
+def chunk_action_limits(data: TrainingData, normalized: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Per chunk step and action dimension, ``[H, A]`` min and max over the training windows' actions
+    (relative to their query frame if so; normalised by ``data.action_norm`` unless ``normalized`` is
+    False), read in blocks. Relative targets spread with the step: the first is a step's motion,
+    the last a chunk's."""
+    windows = Windows(data, data.train_episodes, normalize=False)
+    shape = (data.spec.horizon, data.action.shape[1])
+    lo, hi = np.full(shape, np.inf, np.float32), np.full(shape, -np.inf, np.float32)
+    idx = windows.sampler.indices
+    for i in range(0, len(idx), 65536):
+        block = windows.actions(idx[i : i + 65536])
+        lo, hi = np.minimum(lo, block.min(axis=0)), np.maximum(hi, block.max(axis=0))
+    if normalized:  # an increasing affine map per dimension keeps min and max
+        lo, hi = data.action_norm.normalize(lo), data.action_norm.normalize(hi)
+    return lo, hi
+
+
+class Windows:
+    """Training windows of some episodes as tensors: the WindowSampler on in-memory arrays, then
+    actions made relative to the query frame (if so) and normalised, a few array operations per batch."""
+
+    def __init__(self, data: TrainingData, episodes: np.ndarray, normalize: bool = True):
+        partial = data.labelled is not None and not data.labelled.all()
+        # The label flag rides along as an extra action column, so one gather serves both.
+        action = np.concatenate([data.action, data.labelled[:, None].astype(np.float32)], axis=1) if partial else data.action
+        self.cameras = list(data.images)
+        self.sampler = WindowSampler({"obs": data.obs, **data.images, "action": action}, data.ends, ["obs", *self.cameras],
+                                     "action", data.spec.n_obs, data.spec.horizon, episodes=episodes)
+        if data.labelled is not None:
+            self.sampler.indices = self.sampler.indices[data.labelled[self.sampler.indices]]
+        self.partial = partial
+        self.base = data.base
+        self.norm = data.action_norm if normalize else None
+
+    def __len__(self) -> int:
+        return len(self.sampler)
+
+    def _targets(self, t: np.ndarray, action: np.ndarray, pad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The sampler's action windows at ``t`` as targets: label flags split off, relative if so."""
+        if self.partial:
+            action, pad = action[..., :-1], pad | (action[..., -1] < 0.5)
+        if self.base is not None:
+            action = action - self.base[t][:, None, :]
+        return action, pad
+
+    def actions(self, t: np.ndarray) -> np.ndarray:
+        """``[B, H, A]`` raw actions of the windows at ``t``, relative to their query frame if so (no
+        observation or image is read)."""
+        t = np.asarray(t, dtype=np.int64)
+        return self._targets(t, *self.sampler.actions(t))[0]
+
+    def get(self, t: np.ndarray) -> Batch:
+        b = self.sampler.get(t)
+        action, pad = self._targets(b.index, b.action, b.action_pad)
+        action = self.norm.normalize(action) if self.norm is not None else action
+        obs: Observation = torch.from_numpy(b.obs["obs"])
+        if self.cameras:
+            obs = {STATE: obs, **{k: torch.from_numpy(b.obs[k]) for k in self.cameras}}
+        return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
+        return self.get(self.sampler.indices[rng.integers(0, len(self.sampler.indices), size=batch_size)])
+
+    def fixed(self, n: int, seed: int) -> Batch | None:
+        """Up to ``n`` windows chosen once (validation), or None when there are none."""
+        if len(self.sampler) == 0:
+            return None
+        idx = self.sampler.indices
+        if len(idx) > n:
+            idx = np.sort(np.random.default_rng(seed).choice(idx, size=n, replace=False))
+        return self.get(idx)

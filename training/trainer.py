@@ -1,0 +1,442 @@
+"""A training run: everything around the optimisation that every algorithm shares.
+
+:class:`TrainingRun` owns a run's lifecycle, so that an algorithm file holds only what is its own:
+
+1. **seeding and threads**: ``torch.manual_seed(seed)``, the batch RNG, ``torch.set_num_threads``;
+2. **the run directory** (:mod:`demo.policies.checkpoint`): refused if it holds something else,
+   replaced only with ``overwrite``, continued with ``resume`` (which must train the same thing);
+3. **the record** ``run.json``: task, robot, data split, the resolved config, the exact command
+   (a union of stores: every store and every robot, each robot's files kept in the run);
+4. **the loop** (:meth:`TrainingRun.fit`): batches of training windows, one optimiser step each
+   (:func:`demo.training.optim.train_step`), mean training loss every ``log_every`` steps, validation
+   loss every ``val_every``, rollout success every ``eval_every`` (:class:`Monitor`: episodes of
+   the store's task on seeds disjoint from the data and from ``demo eval``);
+5. **checkpoints**: the policy (evaluation weights) and ``train_state.pt`` (tensors only) at every
+   evaluation, at the end, and on Ctrl-C, so that ``resume`` continues bit-exactly;
+6. **metrics and the summary**: ``metrics.json``, ``curves.png``, the dict :meth:`finish` returns.
+
+Progress is reported as :class:`demo.progress.Tick` s of one stage ("train ALGO") with the fields
+``loss``, ``val``, ``success`` and ``info``; the CLI draws them.
+
+Use (behaviour cloning, :mod:`demo.imitation.bc`)::
+
+    with TrainingRun(config, progress=progress, resume=resume, overwrite=overwrite) as run:
+        data = ...                         # demo.training.data.prepare
+        learner = run.new_learner(data)
+        run.begin(store, data, learner)    # opens the run directory, writes run.json
+        run.fit(until=config.steps)        # on the attached data's training windows
+        return run.finish()
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.progress import Progress, Tick, or_silent
+from demo.store import ActionSpec, EpisodeStore, StoreMeta
+from demo.store.location import absolute
+from demo.policies import checkpoint as ckpt
+from demo.training import distributed
+from demo.policies.actor import ExecConfig
+from demo.training.config import TrainConfig
+from demo.training.data import TrainingData, chunk_action_limits
+from demo.policies.device import resolve_device
+from demo.training.optim import Learner, make_learner, train_step, validation_loss
+from demo.policies.policy import build_policy, policy_config
+from demo.policies.visuomotor import encoder_config
+
+# What --resume may not change: the data, the policy and everything that shapes its training.
+RESUME_KEYS = ("algo", "policy", "seed", "batch_size", "lr", "n_obs", "chunk", "obs_keys", "train_mask", "val_mask",
+               "val_fraction", "include_failures", "ema", "weight_decay", "warmup_steps", "min_lr_ratio",
+               "relative_actions", "obs_noise", "encoder")
+
+
+def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
+    """How the trained policy's chunks and gripper are executed (recorded in the run)."""
+    binary = tuple(i for i, name in enumerate(action.names) if name == "gripper") if config.binary_gripper else ()
+    return ExecConfig(config.execute, config.ensemble_decay if config.ensemble else None, binary, config.candidates)
+
+
+class Monitor:
+    """Periodic rollout evaluation on the data's task (seeds disjoint from the data and from demo eval)."""
+
+    def __init__(self, episodes: int, seed: int):
+        self.episodes, self.seed = episodes, seed
+        self.env: Any = None
+
+    def __call__(self, bundle: ckpt.PolicyBundle) -> dict[str, Any]:
+        from demo.seeds import MONITOR_OFFSET, eval_seeds
+        from demo.evaluation.evaluate import make_eval_env, resolve_target, run_episodes_inline, summarize
+
+        if self.env is None:
+            task, options, robot = resolve_target(bundle, None, None, None)
+            self.env = make_eval_env(bundle, task, options, robot)
+        outcomes = run_episodes_inline(bundle, self.env, eval_seeds(self.seed, self.episodes, MONITOR_OFFSET))
+        return summarize(outcomes)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+
+class TrainingRun:
+    """One run directory from seeding to summary; see the module docstring for its stages."""
+
+    def __init__(self, config: TrainConfig, *, progress: Progress | None = None, resume: bool = False,
+                 overwrite: bool = False, command: str | None = None, total_steps: int | None = None,
+                 name: str | None = None, title: str | None = None):
+        config.check()
+        policy_config(config.algo, config.policy)  # unknown policy or option: fail before touching anything
+        try:
+            encoder_config(config.encoder)
+        except (TypeError, ValueError) as exc:
+            raise DemoError("--encoder", str(exc)) from None
+        # Under torchrun: this rank's group and device (demo.training.distributed); None in one process.
+        self.group, self.device = distributed.init_from_env(resolve_device(config.device))
+        self.config = config
+        self.out = Path(config.out)
+        self.resume, self.overwrite, self.command = resume, overwrite, command
+        self.progress = or_silent(progress if self.is_main else None)  # rank 0 reports for all
+        self.total_steps = total_steps or config.steps
+        self.stage = f"train {name or config.algo}"  # the progress bar's label
+        self.title = title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}"
+        if config.threads > 0:
+            torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        self.rng = np.random.default_rng([config.seed, 0xB0C])
+        self.metrics: dict[str, Any] = {"train_loss": [], "val_loss": [], "eval": []}
+        monitored = (config.eval_every or config.eval_final) and self.is_main
+        self.monitor = Monitor(config.eval_episodes, config.seed) if monitored else None
+        self.learner: Learner | None = None
+        self.data: TrainingData | None = None
+        self.record: dict[str, Any] = {}
+        self.execution = ExecConfig()
+        self.action: ActionSpec | None = None
+        self._fields = {"loss": "-", "val": "-", "success": "-", "info": ""}
+        self._started = time.perf_counter()
+        self._opened = False
+        self._saved: dict[str, Any] | None = None  # the train state a resumed run continues from, read once
+
+    @property
+    def is_main(self) -> bool:
+        """Whether this process writes the run directory and reports (always, unless data-parallel rank > 0)."""
+        return self.group is None or self.group.is_main
+
+    # ---------------------------------------------------------------------------- 1-3. set-up
+    def __enter__(self) -> "TrainingRun":
+        return self
+
+    def __exit__(self, kind: type | None, *exc: object) -> None:
+        try:
+            if kind is KeyboardInterrupt and self.learner is not None:
+                self.checkpoint()
+        finally:
+            if self.monitor is not None:
+                self.monitor.close()
+            distributed.shutdown(self.group)
+
+    def open_directory(self) -> None:
+        """Create the run directory (once); with ``resume`` it must hold a train state, with
+        ``overwrite`` an older run is replaced (never a directory that is not a run)."""
+        out = self.out
+        if self._opened:
+            return
+        self._opened = True
+        if self.resume:
+            check_run_directory(out, resume=True, overwrite=False)
+            self._saved = ckpt.load_train_state(out)  # one that cannot be resumed from is refused before any write
+            return
+        stale = check_run_directory(out, resume=False, overwrite=self.overwrite)
+        distributed.barrier(self.group)  # every rank has looked at the directory before rank 0 changes it
+        if not self.is_main:
+            return
+        if stale:
+            shutil.rmtree(out)
+        out.mkdir(parents=True, exist_ok=True)
+
+    def new_learner(self, data: TrainingData, step: int = 0, phase_steps: int | None = None, seed: int | None = None) -> Learner:
+        """A freshly initialised policy for ``data`` and its optimiser (``seed``: re-seed torch first)."""
+        if seed is not None:
+            torch.manual_seed(seed)
+        policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy),
+                              self.config.encoder)
+        policy.fit_actions(*chunk_action_limits(data))
+        return make_learner(policy, self.config, step, phase_steps, self.device)
+
+    def begin(self, store: EpisodeStore | Sequence[EpisodeStore], data: TrainingData, learner: Learner,
+              algo_record: dict[str, Any] | None = None) -> None:
+        """Record the run (``run.json``, the robots' files) for the data it trains on (``store``, open;
+        several for a union, in ``data``'s order), opening the run directory once every robot is found;
+        with ``resume``, check that the run continues the same training (only ``steps`` and monitoring
+        may change)."""
+        stores = [store] if isinstance(store, EpisodeStore) else list(store)
+        if self.config.robot is not None and len(stores) > 1:
+            raise DemoError("--robot", "replaces the robot of a single store; each store of a union keeps its own")
+        # A missing robot file fails before any write.
+        records = [ckpt.run_robot(s.meta.robot, s.path, self.config.robot) for s in stores]
+        self.open_directory()
+        self.attach(learner, data)
+        first = stores[0]
+        self.action = first.meta.action
+        self.execution = execution_config(self.config, first.meta.action)
+        seeds = np.concatenate([s.column("seed") if s.num_episodes else np.zeros(0, int) for s in stores])
+        self.record = run_record(self.config, first.meta, data, learner, self.execution, self.command, algo_record, seeds)
+        self.record["robot"] = records[0]
+        if self.group is not None:  # --batch-size is per process
+            self.record["data_parallel"] = {"processes": self.group.world,
+                                            "global_batch_size": self.group.world * self.config.batch_size}
+        robots, robot_of = ckpt.distinct_robots(records)
+        if len(stores) > 1:
+            self.record["robots"] = robots
+            self.record["data"]["stores"] = [
+                {**store_record(data, i), "robot": robots[robot_of[i]].get("name")} for i in range(len(stores))]
+        if self.resume:
+            previous = ckpt.read_run(self.out)
+            check_resumable(self.out, previous, self.record)
+            self.record["created"] = previous.get("created", self.record["created"])
+            self.record["resumed"] = [*previous.get("resumed", []),
+                                      {"at_step": int(self._saved["step"]), "command": self.command, "time": ckpt.now()}]
+        if not self.is_main:
+            return
+        # The run carries its robots (config and files) so that it evaluates wherever it is moved.
+        for i, robot in enumerate(robots):
+            ckpt.save_robot(ckpt.robot_home(self.out, i), robot, stores[robot_of.index(i)].path)
+        ckpt.write_run(self.out, self.record)
+
+    def attach(self, learner: Learner, data: TrainingData) -> None:
+        """Make ``learner`` (trained on ``data``) the one checkpointed, evaluated and reported."""
+        self.learner, self.data = learner, data
+
+    def saved_extra(self) -> dict[str, Any]:
+        """The algorithm's own state saved with the checkpoint a resumed run continues (e.g. DAgger's round)."""
+        return json.loads(self._resumed_state().get("extra", "{}"))
+
+    def restore(self, learner: Learner) -> dict[str, Any]:
+        """Load the last checkpoint into ``learner``, the batch RNG and the metrics; returns its extra."""
+        state = self._resumed_state()
+        try:
+            learner.policy.load_state_dict(state["policy"])
+            if learner.ema is not None:
+                learner.ema.shadow = {k: v.to(learner.device, copy=True) for k, v in state["ema"].items()}
+            learner.optimizer.load_state_dict(state["optimizer"])
+            learner.step = int(state["step"])
+            learner.phase_start = int(state.get("phase_start", 0))
+            learner.phase_steps = int(state.get("phase_steps", self.config.steps))
+            self.rng.bit_generator.state = json.loads(state["numpy_rng"])
+            torch.set_rng_state(state["torch_rng"])
+            self.metrics = json.loads(state["metrics"])
+        except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+            raise DemoError(self.out, f"train state does not match this run ({str(exc).splitlines()[0][:160]})") from None
+        return json.loads(state.get("extra", "{}"))
+
+    def _resumed_state(self) -> dict[str, Any]:
+        if self._saved is None:
+            raise RuntimeError("no train state to resume from: open the directory of a run with resume=True first")
+        return self._saved
+
+    # ---------------------------------------------------------------------------- 4. the loop
+    def fit(self, until: int) -> None:
+        """Optimise the attached learner on its data's training windows until its step is ``until``,
+        logging the training loss and the loss on the data's fixed validation windows, evaluating
+        every ``eval_every`` steps."""
+        learner, c = self._attached(), self.config
+        if self.group is not None and learner.loss_module is None:
+            self._distribute(learner)
+        windows = self.data.windows(self.data.train_episodes)
+        val_batch = self.data.validation_batch(c.seed) if self.is_main else None  # rank 0 validates
+        world = 1 if self.group is None else self.group.world
+        self.tick()
+        running, count, t0 = torch.zeros(()), 0, time.perf_counter()
+        if val_batch is not None and learner.step == 0 and not self.metrics.get("val_loss"):
+            self.metrics.setdefault("val_loss", []).append([0, validation_loss(learner, val_batch)])  # the untrained policy
+        while learner.step < until:
+            running += train_step(learner, *windows.sample(c.batch_size, self.rng))
+            count += 1
+            step = learner.step
+            if step % c.log_every == 0 or step == until:
+                mean = distributed.mean(float(running / count), self.group)  # over every rank's batches
+                if not math.isfinite(mean):
+                    raise DemoError(c.out, f"training diverged (loss {mean} at step {step}); lower --lr")
+                self.metrics.setdefault("train_loss", []).append([step, mean])
+                rate = count * c.batch_size * world / max(time.perf_counter() - t0, 1e-9)
+                self.metrics.setdefault("samples_per_s", []).append([step, rate])  # windows, every rank's
+                running, count, t0 = torch.zeros(()), 0, time.perf_counter()
+                self.tick(loss=mean, info=f"{rate:,.0f} samples/s")
+            if val_batch is not None and (step % c.val_every == 0 or step == until):
+                v = validation_loss(learner, val_batch)
+                self.metrics.setdefault("val_loss", []).append([step, v])
+                self.tick(val=v)
+            if self.monitor is not None and c.eval_every and step % c.eval_every == 0 and step != until:
+                self.evaluate()
+                self.checkpoint()
+
+    def _distribute(self, learner: Learner) -> None:
+        """Data-parallel from here on: the loss through DDP, and this rank's own batch and noise RNGs,
+        derived from (seed, rank, step) so that a resumed run may change the number of ranks."""
+        rank = self.group.rank
+        learner.loss_module = distributed.wrap(learner.policy, learner.device)
+        self.rng = np.random.default_rng([self.config.seed, 0xB0C, rank, learner.step])
+        torch.manual_seed(int(np.random.SeedSequence([self.config.seed, 0x7012C, rank, learner.step]).generate_state(1)[0]))
+
+    def evaluate(self) -> dict[str, Any] | None:
+        """Roll the attached learner out with the monitor (None without one); logged in ``metrics``."""
+        if self.monitor is None:
+            return None
+        result = self.monitor(self.bundle())
+        entry = {"step": self._attached().step, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
+        self.metrics["eval"].append(entry)
+        self.tick(success=f"{result['successes']}/{result['episodes']}")
+        return entry
+
+    def bundle(self) -> ckpt.PolicyBundle:
+        """The attached learner as it is now (evaluation weights), runnable like a saved policy."""
+        learner, data = self._attached(), self.data
+        return ckpt.PolicyBundle(self.config.algo, learner.eval_policy(), data.obs_spec, data.obs_norm, data.action_norm,
+                                 self.action, self.execution, self.record, self.out, data.relative)
+
+    def tick(self, done: int | None = None, message: str | None = None, **fields: Any) -> None:
+        """Report progress: the learner's step (or ``done``), updated fields, an optional message line."""
+        for k, v in fields.items():
+            self._fields[k] = f"{v:.4g}" if isinstance(v, float) else str(v)
+        if done is None and self.learner is not None:
+            done = self.learner.step
+        self.progress(Tick(self.stage, done, self.total_steps, dict(self._fields), message))
+
+    # ---------------------------------------------------------------------------- 5-6. checkpoints, summary
+    def checkpoint(self, extra: dict[str, Any] | None = None) -> None:
+        """Save the policy, the train state (with the algorithm's ``extra``), metrics and curves."""
+        from demo.training.plots import plot_training
+
+        if not self.is_main:
+            return
+        learner, data = self._attached(), self.data
+        ckpt.save_policy(self.out, learner.eval_weights(), data.obs_norm, data.action_norm)
+        ckpt.save_train_state(self.out, {
+            "step": learner.step,
+            "phase_start": learner.phase_start,
+            "phase_steps": learner.phase_steps,
+            "policy": learner.policy.state_dict(),
+            "ema": learner.ema.shadow if learner.ema is not None else {},
+            "optimizer": learner.optimizer.state_dict(),
+            "numpy_rng": json.dumps(self.rng.bit_generator.state),
+            "torch_rng": torch.get_rng_state(),
+            "metrics": json.dumps(self.metrics),
+            "extra": json.dumps(extra or {}),
+        })
+        ckpt.write_json(self.out / ckpt.METRICS_FILE, self.metrics)
+        plot_training(self.metrics, self.out / ckpt.CURVES_FILE, title=self.title)
+
+    def finish(self, extra: dict[str, Any] | None = None, **final: Any) -> dict[str, Any]:
+        """Final metrics, a last checkpoint (with ``extra``) and the run's summary (``final`` added)."""
+        learner, m = self._attached(), self.metrics
+        m["final"] = {
+            "step": learner.step,
+            "train_loss": m["train_loss"][-1][1] if m["train_loss"] else None,
+            "val_loss": m["val_loss"][-1][1] if m["val_loss"] else None,
+            "success_rate": m["eval"][-1]["success_rate"] if m["eval"] else None,
+            "seconds": time.perf_counter() - self._started,
+            "expert_labels": self.record["data"]["expert_labels"],
+            **final,
+        }
+        if self.is_main:
+            ckpt.write_run(self.out, self.record)
+        self.checkpoint(extra)
+        distributed.barrier(self.group)  # every rank returns once the run directory is complete
+        data = self.record["data"]
+        return {"out": str(self.out), "algo": self.record["algo"], **m["final"],
+                "train_episodes": len(data["train_episodes"]), "val_episodes": len(data["val_episodes"]),
+                "train_frames": data["train_frames"]}
+
+    def _attached(self) -> Learner:
+        if self.learner is None or self.data is None:
+            raise RuntimeError("no learner attached: call TrainingRun.begin first")
+        return self.learner
+
+
+def check_run_directory(out: Path, resume: bool, overwrite: bool) -> bool:
+    """Refuse (DemoError) a run directory this run may not use; True when it holds an older run that
+    ``overwrite`` replaces. Read-only: callers (and a launcher, before its processes start) decide."""
+    if resume:
+        if not (out / ckpt.STATE_FILE).is_file():
+            raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+        return False
+    stale = out.exists() and any(out.iterdir())
+    if stale:
+        if not overwrite:
+            raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
+        if not (out / ckpt.RUN_FILE).is_file():
+            raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
+    return stale
+
+
+def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner: Learner, execution: ExecConfig,
+               command: str | None, algo_record: dict[str, Any] | None = None,
+               seeds: np.ndarray | None = None) -> dict[str, Any]:
+    """What ``run.json`` says of a run: what it trained on, how, and how to execute the policy."""
+    used = np.union1d(data.train_episodes, data.val_episodes)
+    seeds = np.zeros(0, int) if seeds is None else np.asarray(seeds)
+    return {
+        "algo": (algo_record or {}).get("name", config.algo),
+        "created": ckpt.now(),
+        "command": command,
+        "policy": ckpt.policy_record(config.algo, learner.policy, data.obs_spec, meta.action, execution, data.relative),
+        "task": meta.task,
+        "robot": meta.robot,
+        "fps": meta.fps,
+        "data": {
+            "path": absolute(config.stores[0]),  # a union's first store; all of them under "stores"
+            "episodes_total": len(data.ends),
+            "train_episodes": data.train_episodes.tolist(),
+            "val_episodes": data.val_episodes.tolist(),
+            "train_frames": data.frames(data.train_episodes),
+            "val_frames": data.frames(data.val_episodes),
+            # Every labelled frame of every episode used (validation too) cost one expert query.
+            "expert_labels": data.frames(used),
+            "seeds": [int(s) for s in seeds[seeds >= 0]],
+        },
+        "train": config.to_json(),
+        **({"dagger": algo_record} if algo_record else {}),
+        "versions": {"torch": torch.__version__, "numpy": np.__version__},
+    }
+
+
+def store_record(data: TrainingData, i: int) -> dict[str, Any]:
+    """What ``run.json["data"]["stores"]`` says of the ``i``-th store of a union: its path, where its
+    episodes start in the concatenation, how many it holds and how many of them train and validate."""
+    source = data.sources[i]
+    lo, hi = source.first_episode, source.first_episode + source.episodes
+    train, val = (int(np.count_nonzero((eps >= lo) & (eps < hi))) for eps in (data.train_episodes, data.val_episodes))
+    return {"path": absolute(source.path), "first_episode": lo, "episodes": source.episodes,
+            "train_episodes": train, "val_episodes": val}
+
+
+def data_paths(record: dict[str, Any]) -> list[str]:
+    """The store paths a run record trained on (a union's stores, else its one store)."""
+    data = record.get("data") or {}
+    stores = data.get("stores")
+    if isinstance(stores, list) and stores:
+        return [str(Path(s.get("path", ""))) for s in stores if isinstance(s, dict)]
+    return [str(Path(data.get("path", "")))]
+
+
+def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) -> None:
+    """--resume must continue the same training: same data, policy and data-shaping options."""
+    a, b = previous.get("train", {}), run["train"]
+    differ = [k for k in RESUME_KEYS if json.dumps(a.get(k)) != json.dumps(b.get(k))]
+    if previous.get("algo") != run["algo"] and "algo" not in differ:
+        differ.insert(0, "algo")
+    if data_paths(previous) != data_paths(run):
+        differ.append("data")
+    if differ:
+        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps and monitoring may change)")
