@@ -9,7 +9,6 @@ from typing import Any
 import typer
 from rich.console import Console
 
-from demo.cli.bench import bench_app
 from demo.cli.main import app
 from demo.cli.options import json_option, mask_option, overwrite_option, robot_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
@@ -142,25 +141,3 @@ def _run_check(source: str, opts: Any, selection: Any, progress: Progress, shown
 
 def _yn(v: bool) -> str:
     return "yes" if v else "no"
-
-
-@bench_app.command("convert")
-def bench_convert(
-    json_out: str = json_option(default="-"),
-    frames: int = typer.Option(200_000, help="Frames to convert (synthetic joint trajectories of the robot)."),
-    robot: Path = robot_option(),
-    placo_frames: int = typer.Option(20_000, help="Frames for the per-frame placo FK loop (it is slow)."),
-    seed: int = typer.Option(0, help="Seed of the synthetic trajectories."),
-) -> None:
-    """joint_pos -> ee7 frames/s on one core, vs a bare mj_kinematics loop and a per-frame placo FK loop."""
-    from demo.bench.convert import run_bench
-
-    result = run_bench(frames=frames, robot=str(robot) if robot else None, placo_frames=placo_frames, seed=seed)
-    shown = report_console(json_out)
-    rows = [(k, f"{v['frames_per_s']:,.0f}" if v.get("frames_per_s") else v.get("error", "-"), v.get("note", ""))
-            for k, v in result["results"].items()]
-    shown.print(table(f"bench convert ({result['frames']:,} frames, {result['cpu']})", ["what", "frames/s", "note"], rows))
-    shown.print(f"joint_pos -> ee7 vs bare mj_kinematics: {result['ratio_vs_mj_kinematics']:.2f}x; "
-                f"target >= {result['target_frames_per_s']:,} frames/s: "
-                f"{'met' if result['target_met'] else 'NOT met'}")
-    write_json(result, json_out)

@@ -10,7 +10,6 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from demo.cli.bench import bench_app
 from demo.cli.main import app
 from demo.cli.options import json_option, overwrite_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
@@ -142,30 +141,3 @@ def _print(shown: Console, result: dict, show: str) -> None:
                 ],
             )
         )
-
-
-@bench_app.command("curate")
-def bench_curate(
-    json_out: str = json_option(default="-"),
-    frames: int = typer.Option(1_000_000, help="Frames in the synthetic store."),
-    episode_s: float = typer.Option(10.0, help="Mean episode duration (s at 20 fps)."),
-    seed: int = typer.Option(0, help="Seed of the synthetic store."),
-) -> None:
-    """Curation frames/s with every signal on, vs reading + normalising the same arrays."""
-    from demo.bench.curate import run
-
-    r = run(frames=frames, episode_s=episode_s, seed=seed)
-    report_console(json_out).print(
-        kv_table(
-            "bench curate",
-            [
-                ("frames / episodes", f"{r['frames']} / {r['episodes']}"),
-                ("curation frames/s (all signals)", r["frames_per_s"]),
-                ("curation seconds", r["seconds"]),
-                ("reference: read + normalise frames/s", r["reference_frames_per_s"]),
-                ("ratio to reference", r["ratio_to_reference"]),
-                ("target", f"<= {r['target_seconds_per_1m']} s per 1M frames: {'met' if r['meets_target'] else 'NOT met'}"),
-            ],
-        )
-    )
-    write_json(r, json_out)

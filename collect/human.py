@@ -30,8 +30,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from demo.collect.retarget import retarget_features
-from demo.collect.scripted import (CollectConfig, CollectResult, collect_tick, make_env_for, open_output,
+from demo.collect.scripted import (CollectConfig, CollectResult, collect_tick, make_env_for,
                                    store_meta)
+from demo.store.output import open_output
 from demo.errors import DemoError
 from demo.progress import Progress, or_silent
 from demo.seeds import episode_seed

@@ -35,9 +35,10 @@ from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import episode_seed
-from demo.sim.rollout import Episode, StepCommand, recorded_features, rollout
+from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
-from demo.store.location import StorePath, store_path
+from demo.store.location import store_path
+from demo.store.output import open_output
 
 
 @dataclass
@@ -179,54 +180,12 @@ def run_episodes(config: CollectConfig, executor: ExecutorConfig) -> Iterator[li
 
 
 def store_meta(config: CollectConfig, env: Any) -> StoreMeta:
-    from demo.sim.robot_record import robot_record
-
-    return StoreMeta(
-        fps=float(env.fps),
-        features=recorded_features(env),
-        action=env.action_spec,
-        robot=robot_record(env.robot),  # by content: the store carries a non-built-in robot's files
-        task={"name": config.task, "options": dict(config.task_options), "horizon": int(env.horizon)},
-        provenance=[{"op": "collect", "source": "scripted", **_jsonable(asdict(config))}],
-    )
+    return env_store_meta(env, config.task, config.task_options,
+                          [{"op": "collect", "source": "scripted", **_jsonable(asdict(config))}])
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
     return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items() if k != "episodes"}
-
-
-def open_output(out: str | StorePath, meta: StoreMeta, append: bool, overwrite: bool) -> EpisodeStore:
-    """Create the output store (a local path or a URL), or open it to append after checking it records the same thing.
-
-    Either way the store's writer lock is held from the start (another writer, ``--overwrite``
-    included, is refused); a refused append writes nothing. A created store replaces what was at
-    ``out`` only with its first committed episode: close it with ``EpisodeStore.abandon`` (or leave
-    a ``with`` block by the exception) when collection fails before then, and nothing is left.
-    """
-    out = store_path(out)
-    if append and out.exists():
-        from demo.sim.robot_record import same_robot
-
-        store = EpisodeStore.open(out, "a")
-        have = store.meta
-        mismatch = [
-            name
-            for name, a, b in [
-                ("task", (have.task or {}).get("name"), (meta.task or {}).get("name")),
-                ("task options", (have.task or {}).get("options"), (meta.task or {}).get("options")),
-                ("robot", same_robot(have.robot, meta.robot), True),
-                ("features", {k: v.to_json() for k, v in have.features.items()},
-                 {k: v.to_json() for k, v in meta.features.items()}),
-                ("action", have.action.to_json(), meta.action.to_json()),
-            ]
-            if a != b
-        ]
-        if mismatch:
-            store.abandon()
-            raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
-        store.update_meta(provenance=[*have.provenance, *meta.provenance])
-        return store
-    return EpisodeStore.create(out, meta, overwrite=overwrite)
 
 
 @dataclass

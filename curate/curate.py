@@ -38,6 +38,7 @@ from demo.curate.signals import outliers as outlier_signals
 from demo.curate.signals import success as success_signals
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
+from demo.store.episode_table import REASONS_COLUMN
 from demo.store import EpisodeStore
 from demo.store.location import StorePath, same_store, store_path
 
@@ -52,7 +53,6 @@ ALL_SIGNALS: tuple[Signal, ...] = (
 REASONS = ("failed", "idle", "jerky", "inconsistent", "novel", "duplicate", "length", "near-miss")
 # What compute_signals does, in order: one progress step each (stage "curate").
 STEPS = ("load", "success", "idle", "jerk", "length", "consistency", "duplicates")
-REASONS_COLUMN = "curate.reasons"  # why each episode was dropped ("" = kept), written with --mask
 
 
 @dataclass

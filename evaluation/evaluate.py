@@ -51,10 +51,11 @@ from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, eval_seeds
-from demo.sim.rollout import StepCommand, rollout
+from demo.sim.rollout import StepCommand, env_store_meta, rollout
+from demo.store.output import open_output
 from demo.policies.actions import make_action_adapter
 from demo.policies.actor import ExecConfig, PolicyActor
-from demo.policies.checkpoint import PolicyBundle, load_bundle, robot_home, trained_robots
+from demo.policies.checkpoint import PolicyBundle, load_bundle, now, robot_home, trained_robots
 from demo.policies.device import resolve_device
 
 Z95 = 1.959963984540054
@@ -402,12 +403,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
 def open_record(path: str, env: Any, task: str, options: dict[str, Any], run: Path, seed: int) -> Any:
     """The store ``--record`` appends rollouts to (an :class:`EpisodeStore`, writer lock held): created
     with ``env``'s features, task and robot, or opened to append after checking it records the same
-    (:func:`demo.collect.scripted.open_output`; a mismatch is refused before any rollout)."""
-    from demo.collect.scripted import CollectConfig, open_output, store_meta
-    from demo.policies.checkpoint import now
-
-    meta = store_meta(CollectConfig(task=task, task_options=dict(options)), env)
-    meta.provenance = [{"op": "eval", "run": str(run), "seed": seed, "time": now()}]
+    (:func:`demo.store.output.open_output`; a mismatch is refused before any rollout)."""
+    meta = env_store_meta(env, task, options, [{"op": "eval", "run": str(run), "seed": seed, "time": now()}])
     return open_output(path, meta, append=True, overwrite=False)
 
 

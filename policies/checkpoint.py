@@ -40,7 +40,7 @@ from safetensors.torch import load_file, save_file
 from demo.errors import DemoError
 from demo.jsonio import replace_atomically, write_json
 from demo.store import ActionSpec
-from demo.store.robot_files import copy_robot_files, file_table
+from demo.store.robot_files import copy_robot_files, file_table, same_robot
 from demo.policies.actor import ExecConfig, PolicyActor
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
@@ -186,7 +186,6 @@ def save_robot(run_dir: str | Path, record: dict[str, Any] | None, store_path: s
 def distinct_robots(records: list[dict[str, Any] | None]) -> tuple[list[dict[str, Any]], list[int]]:
     """The different robots among the records of several stores (by content, in first-seen order)
     and, per store, the index of its robot among them."""
-    from demo.sim.robot_record import same_robot
 
     robots: list[dict[str, Any]] = []
     index = []

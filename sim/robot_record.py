@@ -54,14 +54,6 @@ def robot_record(robot: RobotConfig) -> dict[str, Any]:
     }
 
 
-def same_robot(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
-    """Whether two records describe the same robot (by content; where it was read from does not count)."""
-    a, b = a or {}, b or {}
-    if "files" in a and "files" in b:
-        return all(a.get(k) == b.get(k) for k in ("name", "toml", "files"))
-    return a.get("name") == b.get("name") and a.get("config") == b.get("config")
-
-
 def resolve_robot(
     record: dict[str, Any] | None, override: str | Path | None = None, where: str | Path | None = None
 ) -> RobotConfig:

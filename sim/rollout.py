@@ -35,7 +35,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from demo.sim.env import Env
-from demo.store import FeatureSpec
+from demo.sim.robot_record import robot_record
+from demo.store import FeatureSpec, StoreMeta
 
 
 class StepCommand(NamedTuple):
@@ -174,3 +175,16 @@ def run_expert(
         return StepCommand(executed=action, label=action, ee_target=np.asarray(expert.ee_target, np.float32))
 
     return rollout(env, seed, act, max_steps=max_steps, hold_success_s=hold_success_s, record=record, reset=False)
+
+
+def env_store_meta(env: Env, task: str, options: dict[str, Any], provenance: list[dict[str, Any]]) -> StoreMeta:
+    """The metadata of a store that records ``env``'s episodes of ``task``: fps, the recorded features,
+    the action, the robot (by content: a non-built-in robot's files travel with the store), the task."""
+    return StoreMeta(
+        fps=float(env.fps),
+        features=recorded_features(env),
+        action=env.action_spec,
+        robot=robot_record(env.robot),
+        task={"name": task, "options": dict(options), "horizon": int(env.horizon)},
+        provenance=list(provenance),
+    )

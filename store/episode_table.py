@@ -46,6 +46,7 @@ FIXED_COLUMNS: dict[str, pa.DataType] = {
 }
 MASK_PREFIX = "mask."
 SCORE_PREFIX = "score."
+REASONS_COLUMN = "curate.reasons"  # why curation dropped each episode ("" = kept), written by `demo curate --mask`
 
 
 def empty_table() -> pa.Table:

@@ -143,3 +143,11 @@ def copy_robot_files(record: dict[str, Any] | None, origin: object, dest: object
         shutil.rmtree(target)
     os.replace(staging, target)
     return True
+
+
+def same_robot(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
+    """Whether two records describe the same robot (by content; where it was read from does not count)."""
+    a, b = a or {}, b or {}
+    if "files" in a and "files" in b:
+        return all(a.get(k) == b.get(k) for k in ("name", "toml", "files"))
+    return a.get("name") == b.get("name") and a.get("config") == b.get("config")

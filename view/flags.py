@@ -7,9 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from demo.curate.curate import REASONS_COLUMN
 from demo.store import EpisodeStore
-from demo.store.episode_table import SCORE_PREFIX
+from demo.store.episode_table import REASONS_COLUMN, SCORE_PREFIX
 
 LABEL_REASON_CHARS = 40  # a dropdown entry shows this much of the drop reasons; the details show all
 

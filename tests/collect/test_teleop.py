@@ -23,7 +23,7 @@ import viser
 import zstandard
 from websockets.sync.client import connect
 
-from demo.collect.teleop import TeleopConfig, TeleopSession
+from demo.view.teleop import TeleopConfig, TeleopSession
 from demo.store import EpisodeStore
 from viser import _messages as vm
 

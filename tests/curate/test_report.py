@@ -10,7 +10,8 @@ import pytest
 
 from demo.cli.main import main
 from demo.curate import report, synthetic
-from demo.curate.curate import REASONS_COLUMN, analyse
+from demo.curate.curate import analyse
+from demo.store.episode_table import REASONS_COLUMN
 from demo.store import EpisodeStore
 
 

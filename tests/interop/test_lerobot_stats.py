@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from demo.interop.lerobot_stats import QUANTILES, STAT_NAMES, StatsAccumulator, histogram_stats, image_histogram, lowdim_stats, to_json
+from demo.interop.lerobot.stats import QUANTILES, STAT_NAMES, StatsAccumulator, histogram_stats, image_histogram, lowdim_stats, to_json
 
 
 def test_lowdim_episode_stats_match_numpy() -> None:

@@ -1,31 +1,15 @@
-"""robomimic HDF5 export and import (h5py).
+"""robomimic HDF5 file -> store: :func:`import_robomimic`.
 
-File layout written by :func:`export_robomimic` (and read by :func:`import_robomimic`)::
-
-    data                 attrs: total (frames), env_args (JSON), demo_meta (JSON, written by demo)
-    data/demo_<i>        attrs: num_samples; episode.<column> for every per-episode column
-      actions            [T, d] float32 (the store's action, in its representation)
-      obs/<name>         obs.<name>, dtype kept (camera images uint8 [T, H, W, C], gzip)
-      next_obs/<name>    obs shifted by one frame, the last frame repeated (robomimic's convention)
-      states             sim.state [T, n] float64: MuJoCo mjSTATE_INTEGRATION (not robosuite's layout)
-      rewards            [T] float64, sparse: 1.0 on the last frame of a successful episode
-      dones              [T] int64: 1 on the last frame
-      extra/<key>        every other store key (info.*, sim.* besides sim.state), ignored by robomimic
-    mask/<name>          names (bytes) of the demos in store mask ``mask.<name>`` (robomimic filter keys)
-
-``env_args`` is ``{"env_name": <task>, "type": "demo", "env_kwargs": {robot, task, control_freq}}``:
-robomimic can train from the file, but cannot create the environment for rollouts (its env types
-are robosuite/gym). ``demo_meta`` holds the store's metadata (fps, action representation name,
-units and params, feature descriptions, robot, task, provenance), the key map and the arrow types of
-the per-episode columns, which make store -> robomimic -> store bit-exact. Synthesised datasets
-(``rewards``, ``dones``, ``next_obs``) are skipped when reading a file demo wrote.
+A file demo exported is read back by the key map and metadata in its ``demo_meta`` attribute
+(bit-exact); any other robomimic file gets store keys from its first demo's datasets. The file is
+untrusted (:mod:`demo.interop.untrusted`): before anything is read, every link is checked to stay
+inside the file (:func:`_check_contained`), and every dataset's declared size against what it holds.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -33,24 +17,20 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from demo import __version__
 from demo.errors import DemoError
 from demo.interop.common import (
     InteropReport,
     append_info,
     batches,
-    carried_columns,
     check_not_same,
     first_line,
-    is_image,
     now,
     restore_columns,
-    short_name,
     staged_output,
     track,
     type_from_name,
-    type_name,
 )
+from demo.interop.robomimic.layout import COLUMN_ATTR, DEFAULT_FPS, DEMO_NAME, META_ATTR, h5py_module
 from demo.interop.untrusted import (
     INFO_TYPES,
     MAX_FRAME_VALUES,
@@ -64,196 +44,8 @@ from demo.interop.untrusted import (
 )
 from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
-from demo.store.episode_store import EpisodeSelection
-from demo.store.location import store_path as locate_store
 from demo.store.episode_table import MASK_PREFIX
 
-META_ATTR = "demo_meta"
-COLUMN_ATTR = "episode."
-DEMO_NAME = re.compile(r"demo_(\d+)")
-DEFAULT_FPS = 20.0  # robomimic's robosuite datasets are recorded at 20 Hz control
-
-
-def _h5py():
-    import h5py
-
-    return h5py
-
-
-def _key_paths(meta: StoreMeta) -> dict[str, str]:
-    """Store key -> dataset path inside ``data/demo_<i>``."""
-    paths = {}
-    for key in meta.features:
-        if key == "action":
-            paths[key] = "actions"
-        elif key == "sim.state":
-            paths[key] = "states"
-        elif key.startswith("obs."):
-            paths[key] = "obs/" + short_name(key)
-        else:
-            paths[key] = "extra/" + key
-    return paths
-
-
-def _is_hdf5(path: Path) -> bool:
-    try:
-        return path.is_file() and _h5py().is_hdf5(str(path))
-    except OSError:
-        return False
-
-
-def export_robomimic(
-    store_path: str | Path,
-    out: str | Path,
-    *,
-    overwrite: bool = False,
-    episodes: EpisodeSelection = None,
-    next_obs: bool = True,
-    progress: Progress | None = None,
-) -> InteropReport:
-    """Write the store's (selected) episodes to a robomimic HDF5 file at ``out``.
-
-    ``progress``: a tick per episode written (stage ``export robomimic``)."""
-    h5py = _h5py()
-    store_path, out = locate_store(store_path), Path(out)
-    check_not_same(store_path, out)
-    src = EpisodeStore.open(store_path)
-    meta = src.meta
-    chosen = src.select(episodes)
-    if len(chosen) == 0:
-        raise DemoError(store_path, "has no episodes to export")
-    paths = _key_paths(meta)
-    carried = carried_columns(src)
-    masks = [name[len(MASK_PREFIX):] for name, _ in carried if name.startswith(MASK_PREFIX)]
-    bad = [m for m in masks if "/" in m or not m]
-    if bad:
-        raise DemoError(store_path, f"mask name(s) {bad} cannot be HDF5 names")
-    attr_columns = [(n, t) for n, t in carried if not n.startswith(MASK_PREFIX)]
-    table = src.table
-    success = src.column("success")
-    report = InteropReport("robomimic", "export", store_path, out, episodes=int(len(chosen)))
-    synthesized = ["rewards", "dones"] + (["next_obs"] if next_obs else [])
-    store_meta = meta.to_json()
-    store_meta["provenance"] = [*meta.provenance, {
-        "op": "export", "format": "robomimic", "from": str(store_path), "episodes": int(len(chosen)),
-        "time": now(), "demo": __version__,
-    }]
-    demo_meta = {
-        "format": meta.format,
-        "schema_version": meta.schema_version,
-        "store_meta": store_meta,
-        "keys": paths,
-        "episode_columns": [[n, type_name(t)] for n, t in carried],
-        "synthesized": synthesized,
-        "source_episodes": [int(i) for i in chosen] if len(chosen) != src.num_episodes else None,
-    }
-    env_args = {
-        "env_name": (meta.task or {}).get("name", ""),
-        "type": "demo",
-        "env_kwargs": {"robot": meta.robot, "task": meta.task, "control_freq": meta.fps},
-    }
-    frames = 0
-    with staged_output(out, overwrite=overwrite, looks_like=_is_hdf5, kind="robomimic HDF5 file", is_dir=False) as tmp:
-        with open(tmp, "wb", buffering=0) as raw, _WriteErrorKept(raw) as sink, h5py.File(sink, "w") as f:
-            data = f.create_group("data")
-            for new_index, src_index in enumerate(track(chosen, len(chosen), "export robomimic", progress)):
-                ep = src.read_episode(int(src_index))
-                length = len(ep["action"])
-                g = data.create_group(f"demo_{new_index}")
-                g.attrs["num_samples"] = length
-                for key, rel in paths.items():
-                    _write(g, rel, ep[key], meta.features[key])
-                    if next_obs and rel.startswith("obs/"):
-                        shifted = np.concatenate([ep[key][1:], ep[key][-1:]])
-                        _write(g, "next_" + rel, shifted, meta.features[key])
-                rewards = np.zeros(length, dtype=np.float64)
-                rewards[-1] = float(bool(success[src_index]))
-                dones = np.zeros(length, dtype=np.int64)
-                dones[-1] = 1
-                g.create_dataset("rewards", data=rewards)
-                g.create_dataset("dones", data=dones)
-                for name, _ in attr_columns:
-                    value = table.column(name)[int(src_index)].as_py()
-                    if value is not None:
-                        g.attrs[COLUMN_ATTR + name] = value
-                frames += length
-            data.attrs["total"] = frames
-            data.attrs["env_args"] = json.dumps(env_args)
-            data.attrs[META_ATTR] = json.dumps(demo_meta)
-            mask_group = f.create_group("mask")
-            for name in masks:
-                member = np.asarray(src.mask(name))[chosen]
-                names = [f"demo_{i}".encode() for i in np.flatnonzero(member)]
-                mask_group.create_dataset(name, data=np.array(names, dtype="S") if names else np.zeros(0, dtype="S1"))
-    report.frames = frames
-    report.files = [str(out)]
-    params = f", params {', '.join(meta.action.params)}" if meta.action.params else ""
-    report.extras = [
-        f"action representation '{meta.action.name}' (frame {meta.action.frame}, units){params}",
-        f"fps {meta.fps:g}, feature units and descriptions, robot and task metadata, provenance (data attrs {META_ATTR})",
-    ]
-    if attr_columns:
-        report.extras.append("per-episode columns " + ", ".join(n for n, _ in attr_columns) + f" (demo attrs {COLUMN_ATTR}*)")
-    extra_keys = [k for k, rel in paths.items() if rel.startswith("extra/")]
-    if extra_keys:
-        report.extras.append("per-frame keys robomimic has no field for: " + ", ".join(extra_keys) + " (data/demo_N/extra/)")
-    report.notes.append(
-        "rewards (sparse, from success) and dones (last frame) are synthesised"
-        + ("; next_obs repeats the last frame" if next_obs else "")
-    )
-    if "sim.state" in meta.features:
-        report.notes.append("states hold MuJoCo's mjSTATE_INTEGRATION vector, not robosuite's: robomimic cannot replay them")
-    return report
-
-
-class _WriteErrorKept:
-    """The (unbuffered) file h5py writes through: the first OSError of a write (disk full, file too
-    large) is kept and raised when the block ends, and later writes are dropped, so that libhdf5
-    closes the file normally. Left to fail itself, libhdf5 crashes the process (a segfault) when it
-    cannot flush on close; the staged output is then removed as for any other error."""
-
-    def __init__(self, raw: Any):
-        self.raw = raw
-        self.error: OSError | None = None
-
-    def write(self, data: Any) -> int:
-        if self.error is None:
-            try:
-                return self.raw.write(data)
-            except OSError as exc:
-                self.error = exc
-        return len(memoryview(data))
-
-    def truncate(self, size: int | None = None) -> int:
-        if self.error is None:
-            try:
-                return self.raw.truncate(size)
-            except OSError as exc:  # growing the file past a size limit fails here
-                self.error = exc
-        return size if size is not None else self.raw.tell()
-
-    def flush(self) -> None:
-        pass  # the file is unbuffered
-
-    def __getattr__(self, name: str) -> Any:  # read, seek, tell: the real file's
-        return getattr(self.raw, name)
-
-    def __enter__(self) -> "_WriteErrorKept":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.error is not None:
-            raise self.error
-
-
-def _write(group: Any, rel: str, values: np.ndarray, spec: FeatureSpec) -> None:
-    if is_image(spec):
-        group.create_dataset(rel, data=values, compression="gzip", compression_opts=4, chunks=(1, *values.shape[1:]))
-    else:
-        group.create_dataset(rel, data=values)
-
-
-# ================================================================================================ import
 # A dataset may declare more bytes than it stores (compressed chunks, unwritten fill values), but not
 # more than this many times more: deflate cannot exceed ~1032:1, so beyond it the sizes are not data.
 MAX_EXPANSION = 1100
@@ -262,7 +54,7 @@ MAX_LINK_DEPTH = 16  # soft links through soft links
 
 
 def _open(path: Path) -> Any:
-    h5py = _h5py()
+    h5py = h5py_module()
     if not path.exists():
         raise DemoError(path, "no such file")
     if path.is_dir():
@@ -299,7 +91,7 @@ def _check_contained(path: Path, f: Any) -> None:
     to an object of this file, datasets whose bytes live in other files (HDF5 external storage,
     virtual datasets), and datasets declaring more bytes than their stored bytes can expand to.
     """
-    h5py = _h5py()
+    h5py = h5py_module()
     problem: list[DemoError] = []
 
     def visit(name: str, link: Any) -> bool | None:
@@ -332,7 +124,7 @@ def _check_contained(path: Path, f: Any) -> None:
 
 def _resolve_soft(f: Any, name: str, target: str, where: str, depth: int = 0) -> None:
     """A soft link must lead, by hard links and soft links within the file, to an object of it."""
-    h5py = _h5py()
+    h5py = h5py_module()
     if depth > MAX_LINK_DEPTH:
         raise DemoError(where, "soft links nest too deeply (a loop?)")
     base = "/" if target.startswith("/") else "/" + name.rsplit("/", 1)[0] if "/" in name else "/"
@@ -353,7 +145,7 @@ def _resolve_soft(f: Any, name: str, target: str, where: str, depth: int = 0) ->
 
 
 def _check_dataset(where: str, ds: Any) -> None:
-    h5py = _h5py()
+    h5py = h5py_module()
     plist = ds.id.get_create_plist()
     if plist.get_external_count():
         target = plist.get_external(0)[0]
@@ -378,7 +170,7 @@ def _demo_names(path: Path, data: Any) -> list[str]:
 
 def _dataset(path: Path, group: Any, rel: str) -> Any:
     """The numeric dataset ``group/rel`` (not yet read)."""
-    h5py = _h5py()
+    h5py = h5py_module()
     where = f"{path}: {group.name}/{rel}"
     try:
         ds = group[rel]
@@ -404,7 +196,7 @@ def _read(path: Path, ds: Any) -> np.ndarray:
 
 def _mask(path: Path, f: Any, name: str) -> set[str]:
     """The demo names of robomimic filter key ``mask/<name>`` (bytes or strings)."""
-    h5py = _h5py()
+    h5py = h5py_module()
     ds = f["mask"][name]
     where = f"{path}: /mask/{name}"
     if not isinstance(ds, h5py.Dataset) or ds.dtype.kind not in "SOU" or ds.ndim > 1:
@@ -429,7 +221,7 @@ def _json_attr(path: Path, attrs: Any, name: str) -> Any:
 
 def _foreign_meta(path: Path, f: Any, names: list[str], report: InteropReport) -> tuple[dict[str, str], StoreMeta]:
     """Key map and metadata for a robomimic file not written by demo, from its first demo."""
-    h5py = _h5py()
+    h5py = h5py_module()
     data = f["data"]
     first = data[names[0]]
     if not isinstance(first, h5py.Group):
@@ -533,7 +325,7 @@ def import_robomimic(
                 report.notes.append("success: true when any reward > 0, or when the file has no rewards (demonstrations)")
             meta.provenance = [*meta.provenance, {"op": "import", "format": "robomimic", "from": str(src_path),
                                                   "time": now()}]
-            mask_group = f["mask"] if "mask" in f and isinstance(f["mask"], _h5py().Group) else None
+            mask_group = f["mask"] if "mask" in f and isinstance(f["mask"], h5py_module().Group) else None
             masks = {m: _mask(src_path, f, m) for m in (mask_group.keys() if mask_group is not None else ())}
             column_values = {name: [_attr(data[n].attrs.get(COLUMN_ATTR + name)) for n in names]
                              for name, _ in column_types}
@@ -590,7 +382,7 @@ def _attr(value: Any) -> Any:
 def _episode(path: Path, group: Any, paths: dict[str, str], meta: StoreMeta, ours: bool) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """One demo's store arrays and its fixed per-episode info; every dataset's frame shape, dtype and
     length is checked against the metadata before it is read."""
-    h5py = _h5py()
+    h5py = h5py_module()
     where = f"{path}: {group.name}"
     if not isinstance(group, h5py.Group):
         raise DemoError(where, "is not a group")

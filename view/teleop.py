@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from demo.collect.human import HumanConfig, InputEpisode, episode_info, human_store_meta
-from demo.collect.scripted import open_output
+from demo.store.output import open_output
 from demo.collect.retarget import IK_BACKENDS, Retargeter
 from demo.collect.scripted import make_env_for
 from demo.errors import DemoError
