@@ -168,7 +168,7 @@ def _process_map(init: Callable[..., None], init_args: Sequence[Any], run: Calla
 # ---------------------------------------------------------------------------------- ray
 def _import_ray() -> Any:
     try:
-        import ray
+        import ray  # deferred: optional dependency (ray)
     except ImportError:
         raise DemoError("--executor ray", RAY_INSTALL) from None
     return ray
@@ -182,7 +182,7 @@ def _first_line(exc: BaseException) -> str:
 def _ray_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: list[Any],
              config: ExecutorConfig, label: Callable[[Any], str]) -> Iterator[list[Any]]:
     ray = _import_ray()
-    from ray.exceptions import NodeDiedError, ObjectLostError, RayActorError, RayTaskError, WorkerCrashedError
+    from ray.exceptions import NodeDiedError, ObjectLostError, RayActorError, RayTaskError, WorkerCrashedError  # deferred: optional dependency (ray)
 
     lost = (RayActorError, ObjectLostError, NodeDiedError, WorkerCrashedError)  # the worker, not the job, failed
     with session(config):

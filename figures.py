@@ -8,10 +8,10 @@ from typing import Any
 
 def pyplot() -> Any:
     """``matplotlib.pyplot`` on the Agg backend (no display needed); imported on first use."""
-    import matplotlib
+    import matplotlib  # deferred: heavy dependency (matplotlib), only where a figure is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred: after choosing the Agg backend
 
     return plt
 

@@ -19,8 +19,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.convert.check import round_trip
+from demo.convert.convert import ConvertOptions, convert_store
+from demo.curate.curate import curate
 from demo.errors import DemoError
 from demo.progress import Progress
+from demo.training.config import for_policy
 
 
 @dataclass
@@ -42,13 +47,8 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
         overwrite: bool = False, progress: Progress | None = None) -> dict[str, Any]:
     """Run every stage; ``on_stage(name, result, seconds)`` after each, ``progress`` within each
     (the stages' own ticks). Returns all results."""
-    from demo.collect.scripted import CollectConfig, collect_scripted
-    from demo.convert.check import round_trip
-    from demo.convert.convert import ConvertOptions, convert_store
-    from demo.curate.curate import curate
-    from demo.imitation.bc import train
-    from demo.training.config import for_policy
-    from demo.evaluation.evaluate import EvalConfig, evaluate
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.imitation.bc import train  # deferred: torch stays out of demo --help
 
     out = Path(config.out)
     if out.exists() and any(out.iterdir()) and not overwrite:

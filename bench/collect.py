@@ -38,6 +38,7 @@ from demo.bench.common import machine
 from demo.collect.scripted import CollectConfig, collect_scripted, make_env_for
 from demo.executor import ExecutorConfig
 from demo.sim.benchmark import replay_physics
+from demo.store import EpisodeStore
 
 TARGET_RATIO_TO_PHYSICS = 0.8  # issue #17: one worker at >= 0.8x the bare physics of its own steps
 TARGET_TWO_WORKER_SPEEDUP = 1.7
@@ -46,8 +47,6 @@ TARGET_RAY_TO_PROCESS = 0.9
 
 def recorded_episodes(store: Path) -> list[tuple[int, np.ndarray]]:
     """``(reset seed, executed actions)`` of every episode of a collected store, in order."""
-    from demo.store import EpisodeStore
-
     s = EpisodeStore.open(store)
     seeds = s.column("seed")
     return [(int(seeds[i]), s.read_episode(i, ["info.executed_action"])["info.executed_action"])
@@ -159,8 +158,6 @@ def run_executors(task: str = "pick", episodes: int = 120, seed: int = 0, rounds
                   address: str | None = None) -> dict[str, Any]:
     """Frames/s of the same collection on ``workers`` Ray actors (a local Ray, or the cluster at
     ``address``) against ``workers`` local processes, alternating per round; best of each."""
-    from demo.store import EpisodeStore
-
     config = CollectConfig(task=task, episodes=episodes, seed=seed)
     executors = {"process": ExecutorConfig("process", workers), "ray": ExecutorConfig("ray", workers, address)}
     samples: dict[str, list[dict[str, Any]]] = {name: [] for name in executors}

@@ -9,6 +9,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
+
 
 def rate(fn: Callable[[], Any], items_per_call: float, min_seconds: float = 1.0, warmup: int = 2) -> dict[str, float]:
     """Call ``fn`` until ``min_seconds`` have passed; items per second over the timed calls.
@@ -54,8 +56,6 @@ def one_core() -> Iterator[int | None]:
 
 
 def machine() -> dict[str, Any]:
-    import numpy as np
-
     return {
         "python": platform.python_version(),
         "platform": platform.platform(),
@@ -65,10 +65,7 @@ def machine() -> dict[str, Any]:
     }
 
 
-def _torch_threads() -> int | None:
-    try:
-        import torch
+def _torch_threads() -> int:
+    import torch  # deferred: torch stays out of demo --help
 
-        return torch.get_num_threads()
-    except ImportError:
-        return None
+    return torch.get_num_threads()

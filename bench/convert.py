@@ -29,6 +29,7 @@ from demo.convert.context import RobotContext
 from demo.convert.convert import Converter
 from demo.convert.kinematics import Kinematics
 from demo.convert.representations import Anchor, Segments
+from demo.sim import load_robot
 
 TARGET_FRAMES_PER_S = 100_000
 EPISODE_LENGTH = 150
@@ -62,8 +63,6 @@ def _best_of(fn: Any, repeats: int) -> float:
 
 def run_bench(frames: int = 200_000, robot: str | None = None, placo_frames: int = 20_000, seed: int = 0) -> dict[str, Any]:
     """Run the three measurements; returns the JSON written by ``demo bench convert``."""
-    from demo.sim import load_robot
-
     rb = load_robot(robot)
     model = rb.spec().compile()
     kin = Kinematics(model, rb.arm_joints, rb.ee_site, rb.base_body, where=rb.config_path)
@@ -119,10 +118,7 @@ def run_bench(frames: int = 200_000, robot: str | None = None, placo_frames: int
 
 def _placo(rb: Any, q: np.ndarray, kin: Kinematics) -> dict[str, Any]:
     """Per-frame placo FK, as LeRobot does it; also checks it agrees with ours."""
-    try:
-        import placo
-    except ImportError as exc:  # pragma: no cover - placo is a dependency
-        return {"error": f"placo unavailable: {exc}"}
+    import placo  # deferred: heavy dependency (placo), for this comparison alone
     spec = rb.spec()
     for key in list(spec.keys):  # pinocchio's MJCF reader rejects keyframes that include tendon-coupled joints
         spec.delete(key)

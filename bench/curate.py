@@ -22,7 +22,10 @@ from typing import Any
 import numpy as np
 
 from demo.bench.common import machine, one_core
-from demo.curate.curate import ALL_SIGNALS
+from demo.curate import report, synthetic
+from demo.curate.curate import ALL_SIGNALS, analyse
+from demo.curate.frames import load_frames
+from demo.store import EpisodeStore
 
 TARGET_SECONDS_PER_1M = 20.0
 ONE_THREAD = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -30,8 +33,6 @@ ONE_THREAD = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 def build(path: Path, frames: int, episode_s: float, seed: int, extra_obs: int = 14) -> Path:
     """A store of about ``frames`` frames of mixed synthetic episodes (not timed)."""
-    from demo.curate import synthetic
-
     fps = 20.0
     rng = np.random.default_rng(seed)
     per_episode = episode_s * fps * 1.15  # idle starts/pauses/slower operators add ~15%
@@ -46,9 +47,6 @@ def build(path: Path, frames: int, episode_s: float, seed: int, extra_obs: int =
 
 def _reference(path: Path) -> float:
     """Seconds to read action + low-dim obs and normalise them by their typical ranges."""
-    from demo.curate.frames import load_frames
-    from demo.store import EpisodeStore
-
     t0 = time.perf_counter()
     with EpisodeStore.open(path) as store:
         fd = load_frames(store)
@@ -60,10 +58,6 @@ def _reference(path: Path) -> float:
 
 
 def _figure(path: Path) -> tuple[float, dict[str, float], dict[str, Any]]:
-    from demo.curate import report
-    from demo.curate.curate import analyse
-    from demo.store import EpisodeStore
-
     t0 = time.perf_counter()
     with EpisodeStore.open(path) as store:
         curation = analyse(store)
@@ -86,8 +80,6 @@ def run(frames: int = 1_000_000, episode_s: float = 10.0, seed: int = 0, repeats
         t0 = time.perf_counter()
         path = build(Path(tmp) / "bench.zarr", frames, episode_s, seed)
         build_s = time.perf_counter() - t0
-        from demo.store import EpisodeStore
-
         with EpisodeStore.open(path) as store:
             n_frames, n_episodes = store.num_frames, store.num_episodes
         saved = {k: os.environ.get(k) for k in ONE_THREAD}

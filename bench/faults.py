@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from demo.bench.common import machine
+from demo.collect.scripted import CollectConfig, collect_scripted, start_seed
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.store import EpisodeStore
@@ -77,8 +78,6 @@ def child_collect(args: dict[str, Any]) -> None:
     ``args``: ``out``, ``log``, ``episodes``, ``workers``, ``append`` and ``fsize`` (a per-file size
     limit in bytes, 0 for none). Exits 1 with ``error: ...`` on one line when collection fails.
     """
-    from demo.collect.scripted import CollectConfig, collect_scripted  # MuJoCo: imported where a child needs it
-
     if args.get("fsize"):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # an over-size write fails with EFBIG instead
         resource.setrlimit(resource.RLIMIT_FSIZE, (args["fsize"], args["fsize"]))
@@ -107,8 +106,6 @@ def _finished(log: Path) -> int:
 # ------------------------------------------------------------------------------------------ checks
 def inspect(path: Path, finished: int) -> dict[str, Any]:
     """Whether the store at ``path`` holds its ``finished`` first episodes intact: readable, lost, problem."""
-    from demo.collect.scripted import CollectConfig, start_seed
-
     expected = [start_seed(CollectConfig(task=TASK, seed=0), i) for i in range(finished)]
     if not path.exists():
         return {"readable": None if finished == 0 else False, "stored": 0, "lost": finished,
@@ -297,8 +294,7 @@ def run(cfg: FaultsConfig, progress: Progress | None = None) -> dict[str, Any]:
 
 def _sources(work: Path) -> dict[str, Path]:
     """The 20-episode store appends and races start from, and its LeRobot export (for ``demo import``)."""
-    from demo.collect.scripted import CollectConfig, collect_scripted
-    from demo.interop import export_lerobot
+    from demo.interop import export_lerobot  # deferred: av (PyAV) stays out of the collecting children
 
     store = work / "base.zarr"
     collect_scripted(CollectConfig(task=TASK, episodes=BASE_EPISODES, seed=0), store, workers=0)

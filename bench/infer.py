@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,10 +38,13 @@ import torch
 
 from demo.bench.common import machine
 from demo.errors import DemoError
+from demo.evaluation.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
+from demo.policies.checkpoint import load_bundle
 from demo.policies.device import resolve_device
 from demo.policies.diffusion import DiffusionConfig, DiffusionPolicy, with_sampler
 from demo.policies.policy import PolicySpec
 from demo.policies.unet1d import count_parameters
+from demo.seeds import eval_seeds
 
 TARGET_MS = 15.0
 TARGET_SPEEDUP = 8.0
@@ -112,8 +116,6 @@ def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_d
                 device: torch.device = torch.device("cpu")) -> tuple[DiffusionPolicy, Any]:
     """The run's policy and bundle, or a fresh network and None, on ``device``."""
     if run:
-        from demo.policies.checkpoint import load_bundle
-
         bundle = load_bundle(run, device)
         if not isinstance(bundle.policy, DiffusionPolicy):
             raise DemoError(run, f"is a {bundle.algo!r} run, not a diffusion policy")
@@ -125,9 +127,6 @@ def load_policy(run: str | None, config: DiffusionConfig, obs_dim: int, action_d
 
 def success(bundle: Any, episodes: int, seed: int, execute: int | None = None) -> dict[str, Any]:
     """Success of the bundle's policy as configured now, on ``demo eval``'s episodes for ``seed``."""
-    from demo.seeds import eval_seeds
-    from demo.evaluation.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
-
     task, options, robot = resolve_target(bundle, None, None, None)
     env = make_eval_env(bundle, task, options, robot)
     try:
@@ -293,10 +292,6 @@ def _teacher_steps(distilled: dict[str, Any] | None, config: DiffusionConfig, ru
 
 def _teacher_bundle(run: str | None, distilled: dict[str, Any], device: torch.device) -> Any:
     """The teacher a student's ``distilled_from`` names (refused in one line where it is gone)."""
-    from pathlib import Path
-
-    from demo.policies.checkpoint import load_bundle
-
     teacher = distilled.get("run")
     if not isinstance(teacher, str) or not Path(teacher).is_dir():
         raise DemoError(run or "--run", f"its teacher {teacher!r} (distilled_from) is not there to compare success with; "

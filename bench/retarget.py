@@ -20,6 +20,7 @@ from demo.bench.common import machine, one_core, rate
 from demo.collect.human import InputEpisode
 from demo.collect.retarget import IK_BACKENDS, Retargeter, RetargetParams
 from demo.collect.vr import HandMapper, HandRetargeter, PoseTrack, resample, smooth
+from demo.sim import make_env
 
 TARGET_POSES_PER_S = 200.0
 
@@ -73,8 +74,6 @@ def measure_backend(env: Any, ik: str, track: PoseTrack, seconds: float) -> dict
 
 
 def run(task: str = "pick", seconds: float = 2.0, backends: tuple[str, ...] = IK_BACKENDS, seed: int = 0) -> dict[str, Any]:
-    from demo.sim import make_env
-
     env = make_env(task)
     try:
         env.reset(seed)

@@ -11,7 +11,12 @@ from demo.cli.main import app
 from demo.cli.options import address_option, executor_option, json_option, overwrite_option, robot_option
 from demo.cli.output import err_console, kv_table, report_console, write_json
 from demo.cli.progress import bars
+from demo.collect.kinesthetic import collect_kinesthetic
+from demo.collect.scripted import CollectConfig, check_success, collect_scripted
+from demo.collect.vr import collect_vr
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig
+from demo.sim.render import parse_camera
 
 SOURCES = ("scripted", "kinesthetic", "vr")
 
@@ -60,8 +65,6 @@ def collect(
     """Record demonstrations (scripted experts; kinesthetic and VR-style input files)."""
     if source not in SOURCES:
         raise DemoError("--source", f"unknown source {source!r} (choose from {', '.join(SOURCES)})")
-    from demo.sim.render import parse_camera
-
     cameras = tuple(parse_camera(c, "--camera") for c in camera)
     if source != "scripted":
         if input is None:
@@ -75,9 +78,6 @@ def collect(
     options = task_options(blocks)
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":
-            from demo.collect.scripted import CollectConfig, collect_scripted
-            from demo.executor import ExecutorConfig
-
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
                                    robot=robot_config, task_options=options, cameras=cameras)
             result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
@@ -86,12 +86,8 @@ def collect(
             human = dict(operator=operator, robot=robot_config, task_options=options, cameras=cameras, append=append,
                          overwrite=overwrite, progress=progress)
             if source == "vr":
-                from demo.collect.vr import collect_vr
-
                 result = collect_vr(task, input, out, seed, calib=calib, scale=scale, ik=ik, smoothing=smoothing, **human)
             else:
-                from demo.collect.kinesthetic import collect_kinesthetic
-
                 result = collect_kinesthetic(task, input, out, seed, **human)
     summary = {
         "out": result.path,
@@ -120,8 +116,6 @@ def collect(
     report_console(json_out).print(kv_table("collected", rows))
     write_json(summary, json_out)
     if source == "scripted":
-        from demo.collect.scripted import check_success
-
         warning = check_success(result, min_success)  # raises below --min-success
         if warning:
             err_console.print(Text.assemble(("warning:", "bold yellow"), " ", warning), highlight=False, soft_wrap=True)

@@ -13,8 +13,12 @@ from demo.cli.main import app
 from demo.cli.options import json_option, mask_option, overwrite_option, robot_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
+from demo.convert.check import replay_check, round_trip
+from demo.convert.convert import ConvertOptions, convert_store
+from demo.convert.representations import get_representation
 from demo.errors import DemoError
 from demo.progress import Progress
+from demo.store import EpisodeStore
 
 
 @app.command()
@@ -37,9 +41,6 @@ def convert(
     overwrite: bool = overwrite_option("an existing --out store"),
 ) -> None:
     """Re-express actions in another representation (ee7, ee_abs, joint_pos, ...)."""
-    from demo.convert.convert import ConvertOptions
-    from demo.convert.representations import get_representation
-
     get_representation(to)
     if out is None and not check and not round_trip_:
         raise DemoError("--out", "say where to write the converted store (or run --check / --round-trip)")
@@ -61,8 +62,6 @@ def convert(
 
 def _selection(source: str, mask: str | None, episodes: int | None) -> Any:
     """The episodes --check/--round-trip read: the mask's (or all), then at most ``episodes`` of them."""
-    from demo.store import EpisodeStore
-
     if mask is None and episodes is None:
         return None
     with EpisodeStore.open(source) as store:
@@ -72,8 +71,6 @@ def _selection(source: str, mask: str | None, episodes: int | None) -> Any:
 
 def _run_convert(source: str, out: str, opts: Any, overwrite: bool, progress: Progress,
                  shown: Console) -> dict[str, Any]:
-    from demo.convert.convert import convert_store
-
     result = convert_store(source, out, opts, overwrite=overwrite, progress=progress)
     rows: list[tuple[str, Any]] = [
         ("store", result.path),
@@ -100,8 +97,6 @@ def _run_convert(source: str, out: str, opts: Any, overwrite: bool, progress: Pr
 
 
 def _run_round_trip(source: str, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
-    from demo.convert.check import round_trip
-
     rt = round_trip(source, opts, episodes=selection, progress=progress)
     ik = rt.ik
     rows = [
@@ -118,8 +113,6 @@ def _run_round_trip(source: str, opts: Any, selection: Any, progress: Progress, 
 
 
 def _run_check(source: str, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
-    from demo.convert.check import replay_check
-
     report = replay_check(source, opts, episodes=selection, progress=progress)
     rows = [
         (e.episode, e.frames, f"{e.max_pos_err_m:.2e}", f"{e.max_rot_err_rad:.2e}", _yn(e.original_success),

@@ -14,6 +14,12 @@ from demo.cli.main import app
 from demo.cli.options import json_option, overwrite_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
+from demo.curate import report as rep
+from demo.curate.curate import CurateConfig, curate as run_curate
+from demo.curate.report import episode_table_rows
+from demo.curate.signals.consistency import ConsistencyParams
+from demo.curate.signals.duplicates import DuplicateParams
+from demo.curate.signals.idle import IdleParams
 from demo.errors import DemoError
 
 OFF = ("off", "none", "no")
@@ -65,12 +71,6 @@ def curate(
     overwrite: bool = overwrite_option("an existing --out store"),
 ) -> None:
     """Find and drop failed, idle, jerky, inconsistent and duplicate episodes; trim idle starts/ends."""
-    from demo.curate import report as rep
-    from demo.curate.curate import CurateConfig, curate as run_curate
-    from demo.curate.signals.consistency import ConsistencyParams
-    from demo.curate.signals.duplicates import DuplicateParams
-    from demo.curate.signals.idle import IdleParams
-
     if show not in ("auto", "all", "dropped", "none"):
         raise DemoError("--show", f"expected all, dropped, none or auto, got {show!r}")
     if neighbours < 1:
@@ -109,8 +109,6 @@ def _print(shown: Console, result: dict, show: str) -> None:
     s = result["summary"]
     if show == "auto":
         show = "all" if s["episodes"] <= 40 else "dropped"
-    from demo.curate.report import episode_table_rows
-
     rows, left = episode_table_rows(result, show)
     if rows:
         shown.print(table(f"episodes ({show})", ["#", "operator", "success", "frames", "decision", "trim", "reasons"], rows))

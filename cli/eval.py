@@ -44,7 +44,7 @@ def eval_(
     json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
-    from demo.evaluation.evaluate import EvalConfig, evaluate
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
 
     config = EvalConfig(
         run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},

@@ -13,6 +13,9 @@ from demo.cli.options import json_option, mask_option, overwrite_option, store_a
 from demo.cli.output import err_console, kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 from demo.interop.common import InteropReport
+from demo.interop.lerobot import export_lerobot
+from demo.interop.robomimic import export_robomimic
+from demo.interop.video import VideoSettings
 
 
 class Format(str, Enum):
@@ -79,15 +82,10 @@ def export(
     LeRobot's camera videos: their pixel error is measured and shown)."""
     with bars() as progress:
         if format is Format.lerobot:
-            from demo.interop.lerobot import export_lerobot
-            from demo.interop.video import VideoSettings
-
             video = VideoSettings() if crf is None else VideoSettings(crf=crf)
             report = export_lerobot(src, out, overwrite=overwrite, episodes=mask, images=images.value, video=video,
                                     progress=progress)
         else:
-            from demo.interop.robomimic import export_robomimic
-
             report = export_robomimic(src, out, overwrite=overwrite, episodes=mask, progress=progress)
     print_report(report, report_console(json_out))
     write_json(report.to_json(), json_out)

@@ -13,6 +13,9 @@ from demo.cli.options import json_option, overwrite_option
 from demo.cli.output import report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
+from demo.interop.lerobot import import_lerobot
+from demo.interop.robomimic import import_robomimic
+from demo.store.location import is_remote
 
 
 def detect_format(src: Path) -> Format:
@@ -38,20 +41,14 @@ def import_(
     json_out: str = json_option("the report"),
 ) -> None:
     """Import a LeRobot v3.0 dataset or a robomimic HDF5 file into a new store."""
-    from demo.store.location import is_remote
-
     if is_remote(out):  # staged and swapped in by rename: a local folder only
         raise DemoError(out, "demo import writes a local store: import it here, then copy the folder to object "
                              "storage (e.g. aws s3 cp --recursive)")
     format = format or detect_format(src)
     with bars() as progress:
         if format is Format.lerobot:
-            from demo.interop.lerobot import import_lerobot
-
             report = import_lerobot(src, out, overwrite=overwrite, progress=progress)
         else:
-            from demo.interop.robomimic import import_robomimic
-
             report = import_robomimic(src, out, overwrite=overwrite, progress=progress)
     print_report(report, report_console(json_out))
     write_json(report.to_json(), json_out)

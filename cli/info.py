@@ -9,6 +9,7 @@ from demo.cli.main import app
 from demo.cli.options import json_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.errors import DemoError
+from demo.sim.robot_record import describe_robot
 from demo.store import EpisodeStore
 
 
@@ -19,8 +20,6 @@ def info(
     check: bool = typer.Option(False, "--check", help="Read every frame and verify the per-episode checksums."),
 ) -> None:
     """Episodes, frames, fps, task, robot, action representation, features, success, masks."""
-    from demo.sim.robot_record import describe_robot
-
     with EpisodeStore.open(path) as store:
         s = store.summary()
         robot_line, robot_error = describe_robot(store.meta.robot, path)

@@ -7,20 +7,32 @@ from pathlib import Path
 
 import typer
 
+from demo import algorithms
 from demo.cli.main import app, invocation
 from demo.cli.options import json_option, overwrite_option, robot_option
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
-from demo.rl.adversarial import AdversarialConfig
-from demo.rl.ppo import PPOConfig
+from demo.rl.config import ACTIONS, AdversarialConfig, LinearIRLConfig, PPOConfig
+from demo.store import EpisodeStore
 
 irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
                       no_args_is_help=True)
 app.add_typer(irl_app, name="irl")
 
-ALGOS = ("ppo", "gail", "airl", "maxent", "apprenticeship")
-_P, _A = PPOConfig(), AdversarialConfig()  # the defaults live in the library's dataclasses
+ALGOS = algorithms.names(algorithms.IRL)
+_P, _A, _L = PPOConfig(), AdversarialConfig(), LinearIRLConfig()  # the defaults live in the library's dataclasses
+# Which option sets which field (tests/rl/test_cli_options.py holds these to the dataclasses and the command).
+FIELD_OPTIONS = {
+    "PPOConfig": {"task": "--task", "robot": "--robot", "out": "--out", "reward": "--reward", "action": "--action",
+                  "obs_keys": "--obs-keys", "seed": "--seed", "total_steps": "--steps", "num_envs": "--envs",
+                  "num_steps": "--rollout", "lr": "--lr", "ent_coef": "--ent-coef", "eval_every": "--eval-every",
+                  "eval_episodes": "--eval-episodes", "threads": "--threads"},
+    "AdversarialConfig": {"data": "STORE", "kind": "--algo", "demos": "--demos", "inputs": "--inputs",
+                          "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
+                          "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
+    "LinearIRLConfig": {"data": "STORE", "method": "--algo", "demos": "--demos", "inner_iterations": "--inner-iterations"},
+}
 
 
 @irl_app.command("train")
@@ -34,7 +46,7 @@ def train(
     reward: str = typer.Option("task", metavar="task|RUN", help="ppo: the dense task reward (demo.rl.rewards), or the "
                                "reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
     robot: str = robot_option(),
-    action: str = typer.Option(_P.action, metavar="|".join(("ee7", "joint_pos")), help="The policy's actions: ee7 deltas "
+    action: str = typer.Option(_P.action, metavar="|".join(ACTIONS), help="The policy's actions: ee7 deltas "
                                "(through the env's IK) or joint targets relative to the measured joints."),
     obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys.", show_default="state keys without velocities"),
     steps: int = typer.Option(_P.total_steps, help="Environment (control) steps in all."),
@@ -42,7 +54,7 @@ def train(
     rollout: int = typer.Option(_P.num_steps, help="Control steps per environment per PPO iteration."),
     lr: float = typer.Option(_P.lr, help="Adam learning rate of the policy and critic (annealed to 0)."),
     ent_coef: float = typer.Option(_P.ent_coef, help="Entropy bonus coefficient."),
-    seed: int = typer.Option(0, help="Seed of initialisation, sampling and the training episodes."),
+    seed: int = typer.Option(_P.seed, help="Seed of initialisation, sampling and the training episodes."),
     demos: int = typer.Option(None, help="Use the first N successful demonstrations.", show_default="all"),
     init_bc: bool = typer.Option(_A.init_bc, "--init-bc/--no-init-bc",
                                  help="gail, airl: fit the policy's mean to the demonstrations first."),
@@ -55,16 +67,15 @@ def train(
     disc_obs_keys: str = typer.Option(None, help="gail, airl: comma-separated obs.* keys the discriminator reads, e.g. "
                                       "obs.goal_pos-obs.ee_pos,obs.goal_quat-obs.ee_quat (the goal relative to the hand).",
                                       show_default="the task's goal relative to the hand (reach), else the policy's"),
-    inner: int = typer.Option(5, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
+    inner: int = typer.Option(_L.inner_iterations, "--inner-iterations", help="maxent, apprenticeship: PPO iterations per reward update."),
     eval_every: int = typer.Option(_P.eval_every, help="PPO iterations between rollout evaluations (0: at the end only)."),
     eval_episodes: int = typer.Option(_P.eval_episodes, help="Episodes per rollout evaluation (monitoring seeds)."),
-    threads: int = typer.Option(1, help="Torch threads (0 = torch's default)."),
+    threads: int = typer.Option(_P.threads, help="Torch threads (0 = torch's default)."),
     overwrite: bool = overwrite_option("an existing run in --out"),
     json_out: str = json_option("the run summary"),
 ) -> None:
     """Train a policy by RL in the simulator; every run directory evaluates with demo eval RUN."""
-    if algo not in ALGOS:
-        raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
+    algorithms.algorithm(algo, algorithms.IRL)  # an unknown --algo fails here, naming the choices
     if (algo == "ppo") != (store is None):
         raise DemoError("STORE", "ppo learns from the reward, not from a store" if algo == "ppo" else
                         f"{algo} learns from demonstrations: name a STORE")
@@ -74,25 +85,16 @@ def train(
                    action=action, obs_keys=_keys(obs_keys),
                    seed=seed, total_steps=steps, num_envs=envs, num_steps=rollout, lr=lr, ent_coef=ent_coef,
                    eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
-    common = dict(overwrite=overwrite, command=invocation())
+    if algo == "ppo":
+        config: PPOConfig | AdversarialConfig | LinearIRLConfig = rl
+    elif algo in ("gail", "airl"):
+        config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
+                                   init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,
+                                   disc_obs_keys=_keys(disc_obs_keys))
+    else:
+        config = LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner)
     with bars() as progress:
-        if algo == "ppo":
-            from demo.rl.ppo import train as run
-
-            summary = run(rl, progress=progress, **common)
-        elif algo in ("gail", "airl"):
-            from demo.rl.adversarial import train as run_adversarial
-
-            summary = run_adversarial(AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs,
-                                                        grad_penalty=grad_penalty, init_bc=init_bc, gail_reward=gail_reward,
-                                                        airl_reward=airl_reward,
-                                                        disc_obs_keys=_keys(disc_obs_keys)),
-                                      progress=progress, **common)
-        else:
-            from demo.rl.irl_linear import LinearIRLConfig, train as run_linear
-
-            summary = run_linear(LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner),
-                                 progress=progress, **common)
+        summary = algorithms.train(algo, config, progress=progress, overwrite=overwrite, command=invocation())
     rows = [("run", summary["out"]), ("algo", algo), ("environment steps", summary["env_steps"]),
             ("eval success (monitoring seeds)", "-" if summary["success_rate"] is None else
              f"{summary['success_rate']:.0%} of {summary['eval_episodes']}"),
@@ -111,8 +113,6 @@ def train(
 
 
 def _store_task(store: str) -> str:
-    from demo.store import EpisodeStore
-
     with EpisodeStore.open(store) as s:
         name = (s.meta.task or {}).get("name")
     if not name:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import enum
 import os
 import re
+import shlex
 import sys
 import traceback
 import warnings
@@ -43,8 +44,6 @@ _ARGV: list[str] = []
 
 def invocation() -> str:
     """The command as the user typed it (``demo ...``), for run records."""
-    import shlex
-
     return shlex.join(["demo", *_ARGV])
 
 
@@ -64,8 +63,7 @@ def _root(
 
 
 def _register() -> None:
-    # Imported here so `demo --help` stays one import deep per subcommand module.
-    from demo.cli import commands  # noqa: F401
+    from demo.cli import commands  # deferred: cycle (each command module imports app from here)  # noqa: F401
 
 
 def commands() -> dict[str, Any]:

@@ -11,7 +11,7 @@ from demo.cli.options import json_option, overwrite_option
 from demo.cli.progress import bars
 from demo.cli.output import report_console, table, write_json
 from demo.progress import Tick
-from demo.quickstart import QuickstartConfig
+from demo.quickstart import QuickstartConfig, run
 
 
 def _stage_row(name: str, r: dict, seconds: float) -> tuple[str, str, str]:
@@ -47,8 +47,6 @@ def quickstart(
     json_out: str = json_option("every stage's results", unset="DIR/quickstart.json"),
 ) -> None:
     """The whole pipeline on built-in defaults: collect -> curate -> convert -> train -> eval."""
-    from demo.quickstart import run
-
     config = QuickstartConfig(out=str(out), task=task, expert_episodes=episodes, poor_episodes=poor, steps=steps,
                               eval_episodes=eval_episodes, workers=workers, seed=seed)
     shown = report_console(json_out)

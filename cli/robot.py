@@ -8,6 +8,10 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.options import json_option
+from demo.cli.output import kv_table, report_console, table, write_json
+from demo.cli.progress import bars
+from demo.errors import DemoError
+from demo.sim.robot_check import MIN_SUCCESS, check_robot
 
 robot_app = typer.Typer(help="Robot configs: check that one is enough for every task.", no_args_is_help=True)
 app.add_typer(robot_app, name="robot")
@@ -24,11 +28,6 @@ def robot_check(
     json_out: str = json_option("the report"),
 ) -> None:
     """DOF, joint limits, IK reach over every task's targets, the gripper closing, expert success on reach and pick."""
-    from demo.cli.output import kv_table, report_console, table, write_json
-    from demo.cli.progress import bars
-    from demo.errors import DemoError
-    from demo.sim.robot_check import MIN_SUCCESS, check_robot
-
     with bars() as progress:
         report = check_robot(config, episodes=episodes, seed=seed, targets=targets, png=png, progress=progress)
     shown = report_console(json_out)

@@ -10,6 +10,7 @@ import typer
 from demo.cli.main import app
 from demo.cli.options import robot_option
 from demo.cli.output import console, err_console
+from demo.view.teleop import TeleopConfig, serve_teleop
 
 
 @app.command()
@@ -26,8 +27,6 @@ def teleop(
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one)."),
 ) -> None:
     """Live teleoperation in the browser (viser): Start / Stop & save / Discard, gripper buttons."""
-    from demo.view.teleop import TeleopConfig, serve_teleop
-
     config = TeleopConfig(mode=mode, task=task, out=str(out) if out else None, seed=seed, operator=operator, ik=ik,
                           robot=str(robot) if robot else None, host=host, port=port)
     session = serve_teleop(config)

@@ -1,22 +1,33 @@
-"""`demo train`: behaviour cloning, DAgger (and any registered policy) into a run directory;
-`demo bench train`: training throughput with the real data pipeline vs bare forward/backward."""
+"""`demo train`: imitation from a store (every algorithm :mod:`demo.algorithms` lists for it) into a run directory.
+
+The command fills the algorithm's configuration (:class:`TrainConfig`, or :class:`DaggerConfig` for
+the DAgger family) from the flags and hands it to :func:`demo.algorithms.train`; the library resolves
+the defaults and validates. Which flag sets which field: :data:`FIELD_FLAGS` (a test holds the two
+to each other)."""
 
 from __future__ import annotations
 
 import shlex
 from pathlib import Path
+from typing import Any
 
 import typer
 
+from demo import algorithms
+from demo.cli.config_options import config_options, option_fields, with_options
 from demo.cli.main import app, invocation
 from demo.cli.options import (address_option, device_option, executor_option, json_option, overwrite_option,
                               robot_option, store_argument)
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig
+from demo.imitation.config import DaggerConfig
+from demo.training.config import (DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS, LOOP_DEFAULTS, POLICY_DEFAULTS, TrainConfig,
+                                  policy_defaults)
 
-FAMILY = ("dagger", "safedagger", "aggrevate", "dart", "perturb")  # rollouts + aggregation (demo.imitation.dagger.make_family)
-ALGOS = ("bc", *FAMILY, "diffusion", "act")
+FAMILY = algorithms.family()  # rollouts + aggregation: DaggerConfig
+ALGOS = algorithms.names(algorithms.TRAIN)
 
 
 def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str, str]:
@@ -29,10 +40,11 @@ def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str,
     return opts
 
 
-def _defaults(key: str) -> str:
-    """A flag's default per algorithm, from the library's table (demo.training.config)."""
-    from demo.training.config import DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS, POLICY_DEFAULTS, policy_defaults
-
+def _defaults(key: str) -> str | None:
+    """A tuned setting's default per algorithm, from the library's tables (demo.training.config); None
+    for a setting the policies do not tune."""
+    if key not in LOOP_DEFAULTS:
+        return None
     values = {name: policy_defaults(name)[key] for name in POLICY_DEFAULTS}
     values["dagger"] = {**policy_defaults("bc"), **DAGGER_DEFAULTS}[key]
     text = str(next(iter(values.values()))) if len(set(map(str, values.values()))) == 1 else \
@@ -43,32 +55,27 @@ def _defaults(key: str) -> str:
         ("; with images: " + ", ".join(f"{name} {value}" for name, value in images.items()) if images else "")
 
 
+TRAIN_OPTIONS = {f.name for f in option_fields(TrainConfig)}
+DAGGER_OPTIONS = {f.name for f in option_fields(DaggerConfig)}
+# Fields demo train sets from its own arguments rather than a generated option (tests/training/test_cli_options.py
+# holds this list, the generated options and the dataclasses to each other).
+SET_BY_ARGUMENTS = {"data": "STORES", "out": "--out", "algo": "--algo", "policy": "--policy-opt", "encoder": "--encoder",
+                    "obs_keys": "--obs-keys", "relative_actions": "--absolute-actions", "eval_every": "--eval-every",
+                    "eval_episodes": "--eval-episodes", "eval_final": "--eval-episodes", "robot": "--robot",
+                    "device": "--device", "train": "STORES"}
+
+
 @app.command()
+@with_options("algo", config_options(TrainConfig, _defaults), config_options(DaggerConfig, prefix="dagger family: "))
 def train(
     stores: list[str] = store_argument("Episode store to learn from (e.g. pick.zarr); never modified. Several: one policy "
                                         "on their union (same task and action representation, e.g. two arms' ee7 stores)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (checkpoints, metrics, curves).",
                              show_default=False),
     algo: str = typer.Option("bc", help=f"Algorithm: {', '.join(ALGOS)}."),
-    steps: int = typer.Option(None, help="Optimiser steps (DAgger: round 0).", show_default=_defaults("steps")),
-    seed: int = typer.Option(0, help="Seed of initialisation, batches, split and rollouts."),
-    batch_size: int = typer.Option(None, help="Windows per batch.", show_default=_defaults("batch_size")),
-    lr: float = typer.Option(None, help="Peak learning rate (AdamW, warm-up then cosine).", show_default=_defaults("lr")),
-    weight_decay: float = typer.Option(None, help="AdamW weight decay, not on biases.", show_default=_defaults("weight_decay")),
-    warmup: int = typer.Option(None, help="Warm-up steps.", show_default=_defaults("warmup_steps")),
-    ema: float = typer.Option(None, help="EMA decay of the weights used for evaluation; 0 = off.", show_default=_defaults("ema")),
-    n_obs: int = typer.Option(None, help="Observation history in frames.", show_default=_defaults("n_obs")),
-    chunk: int = typer.Option(None, help="Actions predicted per query (action chunking when > 1).", show_default=_defaults("chunk")),
-    execute: int = typer.Option(None, help="Actions executed per query (receding horizon).", show_default=_defaults("execute")),
-    ensemble: bool = typer.Option(None, "--ensemble/--no-ensemble", help="Temporal ensembling of overlapping chunks (ACT).",
-                                  show_default=_defaults("ensemble")),
-    ensemble_decay: float = typer.Option(0.01, help="Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01)."),
-    candidates: int = typer.Option(None, help="Chunks a sampling policy draws per query at execution, the one most "
-                                   "coherent with the chunk before kept (1 = off).", show_default=_defaults("candidates")),
     obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys; shorthands: all (every low-dim key), images, proprio.",
                                  show_default="images + proprio with cameras, else low-dim keys except velocities"),
     absolute_actions: bool = typer.Option(False, "--absolute-actions", help="Predict absolute joint targets instead of targets relative to the joint positions."),
-    obs_noise: float = typer.Option(0.0, help="Std of Gaussian noise on normalised observations during training."),
     encoder: str = typer.Option(None, metavar="small|resnet18", help="Image encoder per camera (stores with cameras): small (CPU) or a GroupNorm ResNet-18 (GPU).",
                                 show_default="small"),
     crop: float = typer.Option(None, help="Random-crop side as a fraction of the image (centre crop at evaluation); 1 = off.",
@@ -78,26 +85,9 @@ def train(
                              "regression, Gaussian mixture or per-dimension bins over the chunk.", show_default="mse"),
     policy_opt: list[str] = typer.Option([], "--policy-opt", metavar="KEY=VALUE", help="Policy option (repeatable), e.g. hidden=512,512.",
                                          show_default="none"),
-    train_mask: str = typer.Option(None, metavar="NAME", help="Train on this store mask's episodes only (e.g. a curated subset).",
-                                   show_default="every episode"),
-    val_mask: str = typer.Option(None, metavar="NAME", help="Validation episodes = this store mask's episodes.",
-                                 show_default="--val-fraction"),
-    val_fraction: float = typer.Option(0.1, help="Otherwise: this fraction of episodes, drawn with the seed."),
-    include_failures: bool = typer.Option(False, "--include-failures", help="Also train on episodes that did not succeed."),
     eval_every: int = typer.Option(0, help="Roll the policy out every N steps (0 = only at the end with --eval-episodes > 0)."),
     eval_episodes: int = typer.Option(0, help="Episodes per rollout evaluation during training (0 = none)."),
-    threads: int = typer.Option(1, help="Torch threads (0 = torch's default)."),
     robot: Path = robot_option("Robot config TOML, where the store's recorded robot files cannot be found.", "the store's"),
-    task: str = typer.Option(None, help="dagger: the task to roll out (must be the data's).", show_default="the data's"),
-    rounds: int = typer.Option(5, help="dagger: rounds of rollouts + aggregation + retraining."),
-    episodes_per_round: int = typer.Option(10, help="dagger: learner rollouts per round."),
-    round_steps: int = typer.Option(2000, help="dagger: optimiser steps of the learner trained after each round."),
-    warm_start: bool = typer.Option(False, "--warm-start", help="dagger: fine-tune the previous learner instead of training a new one per round."),
-    beta: str = typer.Option("indicator", help="dagger: expert-mixing schedule indicator | linear:N | exp:P."),
-    gate: str = typer.Option(None, metavar="deviation:THRESH", help="HG-DAgger: the expert takes over and labels only where the learner strays by THRESH rad "
-                             "(safedagger: the deviation its classifier predicts).", show_default="plain DAgger"),
-    max_labels: int = typer.Option(None, "--max-labels", help="dagger family: stop rolling out once this many expert labels "
-                                   "are spent (demonstrations included).", show_default="no limit"),
     algo_opt: list[str] = typer.Option([], "--algo-opt", metavar="KEY=VALUE", help="safedagger (hidden, steps), aggrevate "
                                        "(states, candidates, sigma, failure_cost), dart (alpha), perturb (sigma, tries): "
                                        "the algorithm's own option (repeatable).", show_default="none"),
@@ -112,15 +102,13 @@ def train(
                               show_default="1: this process alone"),
     distil: Path = typer.Option(None, "--distil", metavar="RUN", help="diffusion: distil this diffusion run into a one-step "
                                 "student on STORE (knowledge distillation of its DDIM sampler).", show_default="no teacher"),
+    **settings: Any,  # one per option field of TrainConfig and DaggerConfig (with_options, below)
 ) -> None:
     """Train a policy on a store: bc (MLP, action chunks, --head), dagger and its family (safedagger, aggrevate, dart,
     perturb: with the task's expert), diffusion, act (ACT)."""
-    from demo.training import distributed
-    from demo.imitation.bc import train as train_bc
-    from demo.training.config import for_policy
+    from demo.training import distributed  # deferred: torch stays out of demo --help
 
-    if algo not in ALGOS:
-        raise DemoError("--algo", f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
+    algorithms.algorithm(algo, algorithms.TRAIN)  # an unknown --algo fails here, naming the choices
     if algo in FAMILY and len(stores) > 1:
         raise DemoError("--algo", f"{algo} trains on one store (it rolls out on one robot and aggregates into one store)")
     if algo not in FAMILY and (workers != 1 or executor != "process" or address):
@@ -135,45 +123,33 @@ def train(
     if algo in FAMILY and max(nproc, distributed.env_world_size()) > 1:
         raise DemoError("--nproc", f"{algo} trains in one process (its rollouts and store are not data-parallel)")
     if nproc > 1 and distributed.env_world_size() == 1:  # not yet under torchrun: become its N processes
-        from demo.training.trainer import check_run_directory
+        from demo.training.run import check_run_directory  # deferred: torch stays out of demo --help
 
         check_run_directory(out, resume, overwrite)  # refused here in one line, not once per process
         raise typer.Exit(distributed.launch(_without_nproc(shlex.split(invocation())[1:]), nproc))
+    learner = {k: v for k, v in settings.items() if k in TRAIN_OPTIONS}
     given = dict(
+        learner,
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
-        out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), seed=seed, steps=steps,
-        batch_size=batch_size, lr=lr, weight_decay=weight_decay, warmup_steps=warmup, ema=ema, n_obs=n_obs,
-        chunk=chunk, execute=execute, ensemble=ensemble, ensemble_decay=ensemble_decay, candidates=candidates, obs_keys=_obs_keys(obs_keys),
-        obs_noise=obs_noise, relative_actions=not absolute_actions, train_mask=train_mask, val_mask=val_mask,
-        val_fraction=val_fraction, include_failures=include_failures, eval_every=eval_every if eval_episodes else 0,
-        eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, threads=threads,
-        robot=str(robot) if robot else None, device=device,
-        encoder={k: v for k, v in (("backbone", encoder), ("crop", crop)) if v is not None},
+        out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), obs_keys=_obs_keys(obs_keys),
+        relative_actions=not absolute_actions, eval_every=eval_every if eval_episodes else 0,
+        eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, robot=str(robot) if robot else None,
+        device=device, encoder={k: v for k, v in (("backbone", encoder), ("crop", crop)) if v is not None},
     )
+    how = dict(resume=resume, overwrite=overwrite, command=invocation())
     if algo in FAMILY:
-        from demo.executor import ExecutorConfig
-        from demo.imitation.dagger import DaggerConfig, learner_config, make_family, train_dagger
-
-        dconfig = DaggerConfig(train=learner_config(**given), task=task, rounds=rounds, episodes_per_round=episodes_per_round,
-                               round_steps=round_steps, warm_start=warm_start, beta=beta, gate=gate,
-                               max_labels=max_labels)
-        dconfig.check()
-        family = make_family(algo, parse_policy_opts(algo_opt, "--algo-opt"))
+        config = DaggerConfig(train=TrainConfig(**given), **{k: v for k, v in settings.items() if k in DAGGER_OPTIONS})
         with bars() as progress:
-            summary = train_dagger(dconfig, executor=ExecutorConfig(executor, workers, address), progress=progress,
-                                   resume=resume, overwrite=overwrite, command=invocation(), family=family)
+            summary = algorithms.train(algo, config, options=parse_policy_opts(algo_opt, "--algo-opt"), progress=progress,
+                                       executor=ExecutorConfig(executor, workers, address), **how)
     elif distil is not None:
-        from demo.training.config import TrainConfig
-        from demo.imitation.distill import train as train_distil
+        from demo.imitation.distill import train as train_distil  # deferred: torch stays out of demo --help
 
         with bars() as progress:  # the student's settings are resolved from the teacher's
-            summary = train_distil(TrainConfig(algo=algo, **given), distil, progress=progress, resume=resume,
-                                   overwrite=overwrite, command=invocation())
+            summary = train_distil(TrainConfig(algo=algo, **given), distil, progress=progress, **how)
     else:
-        config = for_policy(algo, **given)
-        config.check()
         with bars() as progress:
-            summary = train_bc(config, progress=progress, resume=resume, overwrite=overwrite, command=invocation())
+            summary = algorithms.train(algo, TrainConfig(algo=algo, **given), progress=progress, **how)
     rows = [
         ("run", summary["out"]),
         ("algo", algo),

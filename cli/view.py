@@ -11,6 +11,7 @@ import typer
 from demo.cli.main import app
 from demo.cli.options import robot_option, store_argument
 from demo.cli.output import console, err_console
+from demo.view.app import serve
 
 
 @app.command()
@@ -26,8 +27,6 @@ def view(
     no_play: bool = typer.Option(False, "--no-play", help="Start paused."),
 ) -> None:
     """Replay episodes in 3D from their recorded simulator states, with curves and curation flags."""
-    from demo.view.app import serve
-
     viewer = serve(src, host=host, port=port, episode=episode, mjcf=mjcf, robot=robot, autoplay=not no_play)
     # Ctrl-C (and SIGTERM) end the wait below even when the shell started us with SIGINT ignored.
     previous = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from demo.errors import DemoError
+
 PROFILE_NAMES = ("expert", "good", "okay", "poor")
 
 
@@ -58,8 +60,6 @@ PROFILES: dict[str, Profile] = {
 
 def get_profile(name: str) -> Profile:
     if name not in PROFILES:
-        from demo.errors import DemoError
-
         raise DemoError("--operator", f"unknown operator profile {name!r} (choose from {', '.join(PROFILE_NAMES)})")
     return PROFILES[name]
 

@@ -30,6 +30,7 @@ from typing import Any, NamedTuple, Protocol
 import mujoco
 import numpy as np
 
+from demo.collect.ik_placo import PlacoBackend
 from demo.errors import DemoError
 from demo.sim.geometry import quat_angle, quat_conj, quat_mul
 from demo.sim.ik import ArmIK, IKParams
@@ -101,8 +102,6 @@ def make_backend(env: Any, dt: float, params: IKParams, ik: str = "mink") -> IKB
     if ik == "mink":
         return MinkBackend(env, dt, params)
     if ik == "placo":
-        from demo.collect.ik_placo import PlacoBackend
-
         return PlacoBackend(env, dt, params)
     raise DemoError("--ik", f"unknown IK backend {ik!r} (choose from {', '.join(IK_BACKENDS)})")
 

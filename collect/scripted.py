@@ -35,6 +35,7 @@ from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import episode_seed
+from demo.sim import load_robot, make_env
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
@@ -57,8 +58,6 @@ class CollectConfig:
 
 
 def make_env_for(config: CollectConfig) -> Any:
-    from demo.sim import load_robot, make_env
-
     return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
 
 

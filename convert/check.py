@@ -25,6 +25,7 @@ from demo.convert.convert import ConvertOptions, Converter, IKSummary, episode_a
 from demo.convert.representations import ActionFormat, JointTrack, PoseTrack, Segments
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
+from demo.sim import make_env
 from demo.sim.geometry import angle_between, quat_to_mat
 from demo.store import EpisodeStore
 from demo.store.location import store_path
@@ -97,8 +98,6 @@ def replay_check(
 
     ``progress`` counts episodes replayed (stage ``replay check``) and how many agree on success.
     """
-    from demo.sim import make_env
-
     path = store_path(path)
     tell = or_silent(progress)
     with EpisodeStore.open(path) as store:

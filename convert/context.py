@@ -18,6 +18,8 @@ import numpy as np
 
 from demo.convert.kinematics import Kinematics
 from demo.errors import DemoError
+from demo.sim import make_env
+from demo.sim.robot_record import resolve_robot
 from demo.store import ActionSpec, StoreMeta
 
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -66,8 +68,6 @@ def load_context(meta: StoreMeta, where: str | Path, robot_override: str | Path 
 
     ``where``: the store directory (its ``robot/`` folder holds a recorded robot's files).
     """
-    from demo.sim.robot_record import resolve_robot
-
     record = meta.robot or {}
     if robot_override is None and not record.get("config") and not record.get("files"):
         raise DemoError(where, f"names no robot (metadata 'robot.config' is empty), and {purpose} needs the "
@@ -85,8 +85,6 @@ def load_context(meta: StoreMeta, where: str | Path, robot_override: str | Path 
 
 
 def _scene(meta: StoreMeta, robot: Any) -> tuple[mujoco.MjModel | None, np.ndarray | None, ActionSpec | None]:
-    from demo.sim import make_env
-
     task = meta.task or {}
     name = task.get("name")
     if not name:

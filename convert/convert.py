@@ -31,6 +31,7 @@ from demo.convert.representations import (
 )
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
+from demo.sim.robot_record import robot_record
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.location import StorePath, same_store, store_path
 
@@ -257,8 +258,6 @@ def convert_store(
         conv = Converter(src, dst, meta.fps, ctx, opts.ik)
         new_meta = _target_meta(meta, src, dst, dst_spec, conv.crosses and dst.rep.space == "joint")
         if opts.robot is not None and ctx is not None:  # the output records the robot it was converted with
-            from demo.sim.robot_record import robot_record
-
             new_meta.robot = robot_record(ctx.robot)
         ik = IKSummary() if conv.crosses and dst.rep.space == "joint" else None
         anchor_sources: dict[str, int] = {}

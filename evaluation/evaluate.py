@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import torch
 
@@ -51,12 +52,15 @@ from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, eval_seeds
+from demo.sim import make_env
+from demo.sim.robot_record import resolve_robot
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.output import open_output
 from demo.policies.actions import make_action_adapter
 from demo.policies.actor import ExecConfig, PolicyActor
 from demo.policies.checkpoint import PolicyBundle, load_bundle, now, robot_home, trained_robots
 from demo.policies.device import resolve_device
+from demo.evaluation.video import write_video
 
 Z95 = 1.959963984540054
 
@@ -128,8 +132,6 @@ def resolve_target(
 def pick_robot(bundle: PolicyBundle, robot: str | None) -> Any:
     """The ``RobotConfig`` to evaluate on: the run's first robot, another it was trained on by name,
     or the robot config TOML ``robot`` (whether the policy may run on it is :func:`robot_transfer`'s call)."""
-    from demo.sim.robot_record import resolve_robot
-
     records = trained_robots(bundle.run)
     names = [r.get("name") for r in records]
     if robot is None or (robot in names and not Path(robot).is_file()):
@@ -159,8 +161,6 @@ def robot_transfer(bundle: PolicyBundle, robot: str) -> str | None:
 def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: Any, cameras: Sequence[Any] = ()) -> Any:
     """The task's environment for ``bundle`` on ``robot`` (a ``RobotConfig``), rendering the cameras its
     policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`)."""
-    from demo.sim import make_env
-
     env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
     try:
         new = robot_transfer(bundle, env.robot.name)
@@ -217,8 +217,6 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
 
 def diverged(env: Any) -> bool:
     """MuJoCo resets the state itself on a bad acceleration and only counts a warning."""
-    import mujoco
-
     data = getattr(env, "data", None)
     if data is None:
         return False
@@ -390,8 +388,6 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     if store is not None:
         result["record"] = {"store": str(config.record), "episodes": sum(o.outcome != "error" for o in outcomes)}
     if config.video:
-        from demo.evaluation.video import write_video
-
         recorded = [o for o in outcomes if o.states is not None]
         result["video"] = write_video(
             config.video, recorded, task, options, robot, fps=bundle.run.get("fps") or 20.0, size=config.video_size

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
+from demo.sim import make_env
 
 CAMERA = "front"
 FRAME_STRIDE = 2
@@ -38,8 +39,6 @@ def write_video(
         raise DemoError(path, "video must be .gif or .mp4")
     if not outcomes:
         raise DemoError(path, "no episodes recorded for the video")
-    from demo.sim import make_env
-
     env = make_env(task, robot=robot, cameras=((CAMERA, size, size),), **options)
     try:
         tiles = [_render_episode(env, o.states[::FRAME_STRIDE], size, bool(o.success)) for o in outcomes]
@@ -75,7 +74,7 @@ def _grid(tiles: list[np.ndarray]) -> np.ndarray:
 
 
 def _write(path: Path, frames: np.ndarray, fps: float) -> None:
-    import imageio.v3 as iio
+    import imageio.v3 as iio  # deferred: undeclared dependency (viser's), only for --video
 
     path.parent.mkdir(parents=True, exist_ok=True)
     try:

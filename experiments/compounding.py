@@ -109,9 +109,13 @@ from typing import Any, Callable
 
 import numpy as np
 
+from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig
+from demo.jsonio import write_json
 from demo.store import EpisodeStore
 from demo.training.config import TrainConfig, for_policy
+from demo.training.plots import plot_success_vs
 
 METHODS = ("bc", "bc_chunk", "dart_fixed", "dart", "perturb", "dagger", "hg_dagger", "safedagger", "aggrevate")
 # The family members (demo.imitation.dagger.make_family) and what they are called in the figure.
@@ -221,7 +225,7 @@ _BEFORE_THE_KEY_EXISTED = {"warm_start": False, "max_labels": None}
 
 def _check_cached_configuration(d: Path, c: CompoundingConfig) -> None:
     """Reuse ``d`` only if it was made with this configuration (written on first use)."""
-    from demo.policies.checkpoint import read_json, write_json
+    from demo.policies.checkpoint import read_json  # deferred: torch stays out of demo --help
 
     path = d / "configuration.json"
     mine = json.loads(json.dumps({k: getattr(c, k) for k in _CACHE_KEYS}))
@@ -246,8 +250,6 @@ class _Value:
 
     def pool(self, name: str = "pool", noise: float = 0.0, frames: int = 0) -> EpisodeStore:
         """The demonstration pool (``noise``: collected with DART noise), grown until it holds ``frames``."""
-        from demo.collect.scripted import CollectConfig, collect_scripted
-
         c, path = self.c, self.d / f"{name}.zarr"
         config = CollectConfig(task=c.task, episodes=c.pool, seed=c.seed, noise=noise, task_options=self.options)
         workers = c.workers if c.workers > 1 else 0
@@ -266,9 +268,8 @@ class _Value:
     def family(self, method: str, rounds: int, episodes: int, options: dict[str, str], budget: int | None = None) -> Path:
         """A family member's run from the first ``demos`` demonstrations (kept once finished); it stops
         rolling out once it has spent ``budget`` labels."""
-        from demo.executor import ExecutorConfig
-        from demo.policies.checkpoint import RUN_FILE
-        from demo.imitation.dagger import DaggerConfig, make_family, train_dagger
+        from demo.imitation.dagger import DaggerConfig, make_family, train_dagger  # deferred: torch stays out of demo --help
+        from demo.policies.checkpoint import RUN_FILE  # deferred: torch stays out of demo --help
 
         c, run_dir = self.c, self.d / method
         if (run_dir / RUN_FILE).exists() and "final" in _metrics(run_dir):
@@ -286,8 +287,8 @@ class _Value:
 
     def bc(self, method: str, budget: int, noise: float = 0.0, chunk: int = 1) -> tuple[Path, int]:
         """BC (``chunk``: chunked) on the fewest leading demonstrations (``noise``: of the noisy pool) reaching ``budget``."""
-        from demo.imitation.bc import train
-        from demo.policies.checkpoint import POLICY_FILE
+        from demo.imitation.bc import train  # deferred: torch stays out of demo --help
+        from demo.policies.checkpoint import POLICY_FILE  # deferred: torch stays out of demo --help
 
         name = "noisy_pool" if noise else "pool"
         with self.pool(name, noise, budget) as pool:
@@ -301,10 +302,8 @@ class _Value:
 
 
 def run(c: CompoundingConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
-    # Imported here so that `demo --help`, which shows CompoundingConfig's defaults, stays light.
-    from demo.policies.checkpoint import read_json, read_run, write_json
-    from demo.evaluation.evaluate import EvalConfig, evaluate
-    from demo.training.plots import plot_success_vs
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.policies.checkpoint import read_json, read_run  # deferred: torch stays out of demo --help
 
     c.check()
     out = Path(c.out)
@@ -403,7 +402,7 @@ def _name(method: str, c: CompoundingConfig) -> str:
 
 
 def _metrics(run_dir: Path) -> dict[str, Any]:
-    from demo.policies.checkpoint import METRICS_FILE, read_json
+    from demo.policies.checkpoint import METRICS_FILE, read_json  # deferred: torch stays out of demo --help
 
     path = run_dir / METRICS_FILE
     return read_json(path) if path.exists() else {}

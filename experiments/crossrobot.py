@@ -36,8 +36,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.convert.convert import ConvertOptions, convert_store
 from demo.errors import DemoError
-from demo.training.data import ROBOT_AGNOSTIC_KEYS
+from demo.sim import load_robot, make_env
+from demo.sim.robot import BUILTIN_CONFIG
+from demo.training.config import for_policy
 
 UR5E = str(Path(__file__).resolve().parent.parent / "sim" / "assets" / "robots" / "robosuite_ur5e.toml")
 BUILTIN = "builtin"
@@ -54,24 +60,17 @@ class CrossRobotConfig:
     seed: int = 0  # collection, training and evaluation
     steps: int | None = None  # BC optimiser steps (None: demo train's default)
     workers: int = 1  # collection and evaluation processes
-    obs_keys: tuple[str, ...] = ROBOT_AGNOSTIC_KEYS  # the ee7 policies' observations
+    obs_keys: tuple[str, ...] | None = None  # the ee7 policies' observations (None: ROBOT_AGNOSTIC_KEYS)
 
 
 def _config_path(robot: str) -> str:
     """A robot config TOML's path (``builtin``: the built-in arm's)."""
-    from demo.sim.robot import BUILTIN_CONFIG
-
     return str(BUILTIN_CONFIG) if robot == BUILTIN else robot
 
 
 def _robot(config_path: str, task: str) -> Any:
     """The arm (a RobotConfig); refuses one whose base body is rotated in the scene: its ``ee7`` actions
     (base frame) and the observations (scene frame) would then be in different frames."""
-    import numpy as np
-
-    from demo.sim import make_env
-    from demo.sim.robot import load_robot
-
     robot = load_robot(config_path)
     env = make_env(task, robot=robot)
     try:
@@ -87,12 +86,9 @@ def _robot(config_path: str, task: str) -> Any:
 
 
 def run(c: CrossRobotConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
-    # Imported here so that `demo --help`, which shows the config's defaults, stays light.
-    from demo.collect.scripted import CollectConfig, collect_scripted
-    from demo.convert.convert import ConvertOptions, convert_store
-    from demo.imitation.bc import train
-    from demo.training.config import for_policy
-    from demo.evaluation.evaluate import EvalConfig, evaluate
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.imitation.bc import train  # deferred: torch stays out of demo --help
+    from demo.training.data import ROBOT_AGNOSTIC_KEYS  # deferred: torch stays out of demo --help
 
     if len(c.robots) != 2:
         raise DemoError("--robot", f"the experiment compares two arms, got {len(c.robots)}")
@@ -137,9 +133,10 @@ def run(c: CrossRobotConfig, log: Callable[[str], None] = print) -> dict[str, An
         raise RuntimeError(f"a union of {data} was expected to be refused")
 
     first = names[0]
-    runs = {"union_ee7": trained("union_ee7", tuple(str(ee7[n]) for n in names), c.obs_keys)}
+    obs_keys = ROBOT_AGNOSTIC_KEYS if c.obs_keys is None else c.obs_keys
+    runs = {"union_ee7": trained("union_ee7", tuple(str(ee7[n]) for n in names), obs_keys)}
     for n in names:
-        runs[f"ee7_{n}"] = trained(f"ee7_{n}", str(ee7[n]), c.obs_keys)
+        runs[f"ee7_{n}"] = trained(f"ee7_{n}", str(ee7[n]), obs_keys)
     runs[f"joint_{first}"] = trained(f"joint_{first}", str(joint[first]))
     runs[f"ee7_{first}_joint_obs"] = trained(f"ee7_{first}_joint_obs", str(ee7[first]))  # the joint policy's observations
     refusals = {"union_joint": refusal(tuple(str(joint[n]) for n in names)),
@@ -162,7 +159,7 @@ def run(c: CrossRobotConfig, log: Callable[[str], None] = print) -> dict[str, An
                       "points": round(100 * (rate[("union_ee7", n)] - rate[(f"ee7_{n}", n)]), 1)} for n in names}
     return {
         "experiment": "crossrobot",
-        "config": {**asdict(c), "robots": list(c.robots), "obs_keys": list(c.obs_keys)},
+        "config": {**asdict(c), "robots": list(c.robots), "obs_keys": list(obs_keys)},
         "arms": collected,
         "rows": rows,
         "refusals": refusals,

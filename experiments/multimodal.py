@@ -26,6 +26,9 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.figures import pyplot, save_figure
+from demo.seeds import eval_seeds
+from demo.sim.avoid import OBSTACLE_HALF
+from demo.sim.rollout import StepCommand, rollout
 
 
 def classify(ee: np.ndarray, obstacle: np.ndarray) -> str:
@@ -37,10 +40,8 @@ def classify(ee: np.ndarray, obstacle: np.ndarray) -> str:
 
 
 def rollouts(run: str, starts: int, samples: int, seed: int, execute: int | None = None) -> dict[str, Any]:
-    from demo.seeds import eval_seeds
-    from demo.sim.rollout import StepCommand, rollout
-    from demo.policies.checkpoint import load_bundle
-    from demo.evaluation.evaluate import execution_for, make_actor, make_eval_env, resolve_target, single_thread
+    from demo.evaluation.evaluate import execution_for, make_actor, make_eval_env, resolve_target, single_thread  # deferred: torch stays out of demo --help
+    from demo.policies.checkpoint import load_bundle  # deferred: torch stays out of demo --help
 
     bundle = load_bundle(run)
     task, options, robot = resolve_target(bundle, None, None, None)
@@ -103,15 +104,13 @@ def plot(results: list[dict[str, Any]], summaries: list[dict[str, Any]], path: s
     """One row per policy, one column per start state (the first ``starts_shown``, not picked): every
     sampled path from that start, top view, relative to the obstacle, coloured by the side it passes."""
     plt = pyplot()
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Rectangle
+    from matplotlib.lines import Line2D  # deferred: heavy dependency (matplotlib), for the figure alone
+    from matplotlib.patches import Rectangle  # deferred: heavy dependency (matplotlib), for the figure alone
 
     side_color = {"left": "tab:blue", "right": "tab:orange", "none": "tab:red"}
     cols = min(starts_shown, 1 + max(e["start"] for e in results[0]["episodes"]))
     fig, axes = plt.subplots(len(results), cols, figsize=(2.6 * cols, 2.9 * len(results)), squeeze=False,
                              sharex=True, sharey=True)
-    from demo.sim.avoid import OBSTACLE_HALF
-
     hx, hy = OBSTACLE_HALF[:2]
     for row, (res, summ) in enumerate(zip(results, summaries)):
         for col in range(cols):

@@ -63,6 +63,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib.metadata
+import platform
 import tempfile
 import time
 import types
@@ -72,10 +73,17 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+import torch
 
+from demo.bench.common import machine
 from demo.errors import DemoError
+from demo.evaluation.evaluate import diverged, wilson_interval
+from demo.gym import env_id  # importing demo.gym registers the demo/<Task>-v0 ids
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, RL_OFFSET, episode_seed, eval_seeds
+from demo.sim.robot_record import BUILTIN, resolve_robot
+from demo.sim.tasks import TASK_NAMES
+from demo.store import EpisodeStore
 
 INSTALL = ("in the repository: python3 -m venv ../venv-imitation && ../venv-imitation/bin/pip install -e . && "
            "../venv-imitation/bin/pip install imitation==1.0.1, then run ../venv-imitation/bin/demo "
@@ -161,8 +169,6 @@ class EnvSpec:
     def make(self, training: bool = False) -> gymnasium.Env:
         """The env wrapped in ``FlattenObservation``: for evaluation, its own ending rule (success held
         0.5 s, or the horizon); for ``training``, ``hold_success_s=None`` (every episode runs to the horizon)."""
-        import demo.gym  # noqa: F401  (registers the ids)
-
         extra = {"hold_success_s": None} if training else {}
         return gymnasium.wrappers.FlattenObservation(gymnasium.make(self.env_id, **self.options, **extra))
 
@@ -205,10 +211,6 @@ class StreamSeeded(gymnasium.Wrapper):
 def env_spec_for(store: Any, path: str, task: str) -> EnvSpec:
     """The env that executes the store's actions and observes what the store recorded; refuses a store of
     another task, an action representation the env cannot take, or missing observation features."""
-    from demo.gym import env_id
-    from demo.sim.robot_record import BUILTIN, resolve_robot
-    from demo.sim.tasks import TASK_NAMES
-
     if task not in TASK_NAMES:
         raise DemoError("--task", f"unknown task {task!r} (choose from {', '.join(TASK_NAMES)})")
     meta = store.meta
@@ -313,8 +315,6 @@ def evaluate(env: gymnasium.Env, act: Callable[[np.ndarray], np.ndarray], seeds:
              progress: Progress | None = None) -> list[dict[str, Any]]:
     """Roll ``act`` (a flattened observation -> an action of the env's space) out from each reset seed in
     ``seeds`` on ``env`` (the env's own ending rule); one record per episode, ``demo eval``'s fields."""
-    from demo.evaluation.evaluate import diverged  # demo eval's "simulation became unstable" check
-
     tick = or_silent(progress)
     episodes = []
     for i, seed in enumerate(seeds):
@@ -352,8 +352,8 @@ def evaluate(env: gymnasium.Env, act: Callable[[np.ndarray], np.ndarray], seeds:
 def require_peer() -> tuple[Any, Any]:
     """``(imitation, stable_baselines3)``, or one DemoError line saying how to install them."""
     try:
-        import imitation
-        import stable_baselines3
+        import imitation  # deferred: optional dependency (own venv)
+        import stable_baselines3  # deferred: optional dependency (own venv)
     except ImportError as exc:
         raise DemoError("imitation", f"not importable in this Python ({exc.name or exc}); the peer GAIL runs in its "
                                      f"own venv: {INSTALL}") from None
@@ -361,8 +361,6 @@ def require_peer() -> tuple[Any, Any]:
 
 
 def versions() -> dict[str, str | None]:
-    import platform
-
     out: dict[str, str | None] = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
@@ -385,8 +383,6 @@ def _quiet_rounds(module: Any) -> Iterator[None]:
 
 @contextlib.contextmanager
 def _torch_threads(n: int) -> Iterator[None]:
-    import torch
-
     before = torch.get_num_threads()
     torch.set_num_threads(n)
     try:
@@ -410,19 +406,15 @@ def run(config: PeerGailConfig, progress: Progress | None = None) -> dict[str, A
     the JSON-able result (module docstring)."""
     config.check()
     require_peer()
-    from imitation.algorithms.adversarial import common as adversarial_common
-    from imitation.algorithms.adversarial.gail import GAIL
-    from imitation.data.types import Trajectory
-    from imitation.rewards.reward_nets import BasicRewardNet
-    from imitation.util import logger as imitation_logger
-    from imitation.util.networks import RunningNorm
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.utils import set_random_seed
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    from demo.bench.common import machine
-    from demo.store import EpisodeStore
-    from demo.evaluation.evaluate import wilson_interval
+    from imitation.algorithms.adversarial import common as adversarial_common  # deferred: optional dependency (own venv)
+    from imitation.algorithms.adversarial.gail import GAIL  # deferred: optional dependency (own venv)
+    from imitation.data.types import Trajectory  # deferred: optional dependency (own venv)
+    from imitation.rewards.reward_nets import BasicRewardNet  # deferred: optional dependency (own venv)
+    from imitation.util import logger as imitation_logger  # deferred: optional dependency (own venv)
+    from imitation.util.networks import RunningNorm  # deferred: optional dependency (own venv)
+    from stable_baselines3 import PPO  # deferred: optional dependency (own venv)
+    from stable_baselines3.common.utils import set_random_seed  # deferred: optional dependency (own venv)
+    from stable_baselines3.common.vec_env import DummyVecEnv  # deferred: optional dependency (own venv)
 
     tick = or_silent(progress)
     total = _Clock()

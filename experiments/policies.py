@@ -33,8 +33,14 @@ from typing import Any
 
 import numpy as np
 
+from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
+from demo.experiments import multimodal
+from demo.figures import pyplot, save_figure
+from demo.jsonio import write_json
 from demo.progress import Progress, Tick, or_silent
+from demo.store import EpisodeStore
+from demo.training.config import TrainConfig, for_policy
 
 
 @dataclass(frozen=True)
@@ -84,9 +90,9 @@ class PoliciesConfig:
                             ("--episodes-demo", self.episodes_demo)):
             if value < 1:
                 raise DemoError(flag, f"must be at least 1, got {value}")
-        from demo.policies.policy import policy_config
+        from demo.policies.policy import policy_config  # deferred: torch stays out of demo --help
 
-        for name in self.policies:  # a policy not built (yet) or an unknown option fails before anything runs
+        for name in self.policies:  # an unknown policy or option fails before anything runs
             try:
                 policy_config(POLICIES[name].algo, POLICIES[name].options)
             except DemoError as exc:
@@ -107,14 +113,10 @@ def to_train(policies: tuple[str, ...]) -> list[str]:
 # ================================================================================== the steps
 def dataset(c: PoliciesConfig, out: Path, progress: Progress) -> Path:
     """The store every policy trains on: ``c.data``, or ``c.episodes_demo`` demonstrations collected once."""
-    from demo.store import EpisodeStore
-
     path = Path(c.data) if c.data else out / "data.zarr"
     if not path.exists():
         if c.data:
             raise DemoError(path, "no such store")
-        from demo.collect.scripted import CollectConfig, collect_scripted
-
         progress(Tick(STAGE, message=f"collecting {c.episodes_demo} {c.task} demonstrations (seed {c.seed})"))
         collect_scripted(CollectConfig(task=c.task, episodes=c.episodes_demo, seed=c.seed), path, workers=c.workers,
                          progress=progress)
@@ -130,7 +132,7 @@ def dataset(c: PoliciesConfig, out: Path, progress: Progress) -> Path:
 
 def complete(run: Path) -> bool:
     """Whether ``run`` holds a finished training (final metrics and the policy)."""
-    from demo.policies.checkpoint import METRICS_FILE, POLICY_FILE
+    from demo.policies.checkpoint import METRICS_FILE, POLICY_FILE  # deferred: torch stays out of demo --help
 
     try:
         return (run / POLICY_FILE).is_file() and "final" in json.loads((run / METRICS_FILE).read_text())
@@ -141,8 +143,7 @@ def complete(run: Path) -> bool:
 def train(name: str, c: PoliciesConfig, data: Path, runs: Path, progress: Progress) -> dict[str, Any]:
     """Train ``name`` into ``runs/name`` unless complete (an interrupted run, one that saved its train
     state on Ctrl-C, is resumed); its final metrics."""
-    from demo.policies.checkpoint import METRICS_FILE, STATE_FILE, read_json
-    from demo.training.config import TrainConfig, for_policy
+    from demo.policies.checkpoint import METRICS_FILE, STATE_FILE, read_json  # deferred: torch stays out of demo --help
 
     entry, run = POLICIES[name], runs / name
     if not complete(run):
@@ -151,11 +152,11 @@ def train(name: str, c: PoliciesConfig, data: Path, runs: Path, progress: Progre
         common = dict(data=str(data), out=str(run), seed=c.seed, threads=c.threads)
         how = dict(progress=progress, resume=resume, overwrite=not resume)
         if entry.teacher:
-            from demo.imitation.distill import train as distil
+            from demo.imitation.distill import train as distil  # deferred: torch stays out of demo --help
 
             distil(TrainConfig(algo=entry.algo, steps=c.distil_steps, **common), runs / entry.teacher, **how)
         else:
-            from demo.imitation.bc import train as train_bc
+            from demo.imitation.bc import train as train_bc  # deferred: torch stays out of demo --help
 
             train_bc(for_policy(entry.algo, steps=c.steps, policy=dict(entry.options), **common), **how)
     return read_json(run / METRICS_FILE)["final"]
@@ -164,8 +165,8 @@ def train(name: str, c: PoliciesConfig, data: Path, runs: Path, progress: Progre
 def evaluation(name: str, c: PoliciesConfig, run: Path, progress: Progress) -> dict[str, Any]:
     """Success on ``demo eval``'s episodes and, on avoid, both sides; kept in ``run/bench_policies.json``
     and reused while the settings are the same."""
-    from demo.policies.checkpoint import read_json, write_json
-    from demo.evaluation.evaluate import EvalConfig, evaluate, wilson_interval
+    from demo.evaluation.evaluate import EvalConfig, evaluate, wilson_interval  # deferred: torch stays out of demo --help
+    from demo.policies.checkpoint import read_json  # deferred: torch stays out of demo --help
 
     settings = {"eval_episodes": c.eval_episodes, "seed": c.seed, "starts": c.starts, "samples": c.samples}
     path = run / "bench_policies.json"
@@ -178,8 +179,6 @@ def evaluation(name: str, c: PoliciesConfig, run: Path, progress: Progress) -> d
     success = {k: result[k] for k in ("episodes", "successes", "success_rate", "ci95", "mean_length", "failures", "execution")}
     both = None
     if c.task == "avoid":
-        from demo.experiments import multimodal
-
         summary = multimodal.summarize(multimodal.rollouts(str(run), c.starts, c.samples, c.seed), c.starts)
         k = summary["starts_with_both_modes"]
         both = {"starts": c.starts, "samples": c.samples, "starts_with_both": k, "share": k / c.starts,
@@ -191,10 +190,10 @@ def evaluation(name: str, c: PoliciesConfig, run: Path, progress: Progress) -> d
 
 def latencies(runs: dict[str, Path], seconds: float) -> dict[str, dict[str, float]]:
     """Milliseconds per query (batch 1, one thread) of each run's policy, timed in turn, and per control step."""
-    import torch
+    import torch  # deferred: torch stays out of demo --help
 
-    from demo.bench.infer import WARM_BLOCK, time_interleaved
-    from demo.policies.checkpoint import load_bundle
+    from demo.bench.infer import WARM_BLOCK, time_interleaved  # deferred: torch stays out of demo --help
+    from demo.policies.checkpoint import load_bundle  # deferred: torch stays out of demo --help
 
     class Query:  # each policy on an observation of its own shape (time_interleaved passes one to all)
         def __init__(self, run: Path):
@@ -222,7 +221,7 @@ _TRAINING_KEYS = ("task", "data", "episodes_demo", "seed", "steps", "distil_step
 
 def run(c: PoliciesConfig, progress: Progress | None = None) -> dict[str, Any]:
     """Steps 1-5 into ``c.out``; the JSON-able result (``rows``: one per policy in ``c.policies``)."""
-    from demo.policies.checkpoint import read_json, write_json
+    from demo.policies.checkpoint import read_json  # deferred: torch stays out of demo --help
 
     c.check()
     tell = or_silent(progress)
@@ -275,8 +274,6 @@ def run(c: PoliciesConfig, progress: Progress | None = None) -> dict[str, Any]:
 
 def plot(result: dict[str, Any], path: str | Path) -> Path:
     """Bars with 95% intervals: success, both sides (avoid), training time and latency per policy."""
-    from demo.figures import pyplot, save_figure
-
     plt = pyplot()
     rows = result["rows"]
     labels = [r["label"] for r in rows]

@@ -58,9 +58,10 @@ Everything else of a run (seeding, the run directory, the loop, checkpoints, met
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, closing
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
@@ -76,7 +77,7 @@ from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.location import absolute, store_path
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
-from demo.training.config import DAGGER_DEFAULTS, TrainConfig, for_policy
+from demo.imitation.config import FAMILY, DaggerConfig, learner_config
 from demo.training.data import LABEL_KEY, TrainingData, prepare
 from demo.evaluation.evaluate import make_actor, single_thread
 from demo.training.optim import Learner
@@ -85,74 +86,6 @@ from demo.training.trainer import TrainingRun
 DATA_DIR = "data.zarr"
 GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 closed) from the expert's is a deviation
 INTERVENTION_KEY = "info.intervention"  # per frame: 1 where the expert, not the learner, was in control
-
-
-@dataclass
-class DaggerConfig:
-    """DAgger's own hyperparameters; ``train`` holds round 0's (and the optimiser's)."""
-
-    train: TrainConfig = field(default_factory=TrainConfig)
-    task: str | None = None  # must be the data's task (default)
-    rounds: int = 5
-    episodes_per_round: int = 10
-    round_steps: int = 2000
-    warm_start: bool = False  # fine-tune the previous learner instead of training a new one each round
-    refit_normalizers: bool = False  # refit the normalisers to each round's aggregate (default: keep the demonstrations')
-    beta: str = "indicator"  # indicator | linear:N | exp:P
-    gate: str | None = None  # deviation:THRESH (rad) for HG-DAgger
-    max_labels: int | None = None  # stop rolling out once this many expert labels are spent (equal-budget comparisons)
-
-    def beta_at(self, r: int) -> float:
-        kind, _, arg = self.beta.partition(":")
-        try:
-            if kind == "indicator" and not arg:
-                return 0.0
-            if kind == "linear":
-                return max(0.0, 1.0 - r / float(arg))
-            if kind == "exp":
-                return float(arg) ** r
-        except ValueError:
-            pass
-        raise DemoError("--beta", f"{self.beta!r} is not indicator, linear:N or exp:P")
-
-    def gate_threshold(self) -> float | None:
-        if self.gate is None:
-            return None
-        kind, _, arg = self.gate.partition(":")
-        try:
-            value = float(arg)
-        except ValueError:
-            value = -1.0
-        if kind != "deviation" or value <= 0:
-            raise DemoError("--gate", f"{self.gate!r} is not deviation:THRESH with THRESH > 0 (rad)")
-        return value
-
-    def check(self) -> None:
-        self.train.check()
-        if self.rounds < 0:
-            raise DemoError("--rounds", f"must be >= 0, got {self.rounds}")
-        if self.episodes_per_round < 1:
-            raise DemoError("--episodes-per-round", f"must be at least 1, got {self.episodes_per_round}")
-        if self.round_steps < 1:
-            raise DemoError("--round-steps", f"must be at least 1, got {self.round_steps}")
-        self.beta_at(1)
-        self.gate_threshold()
-        if self.max_labels is not None and self.max_labels < 1:
-            raise DemoError("--max-labels", f"must be at least 1, got {self.max_labels}")
-        b = self.beta_at(1)
-        if not 0 <= b <= 1:
-            raise DemoError("--beta", f"beta must lie in [0, 1], got {b} in round 1")
-
-    def to_json(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["train"] = self.train.to_json()
-        return d
-
-
-def learner_config(**given: Any) -> TrainConfig:
-    """The learner's resolved config: ``given`` values, then :data:`DAGGER_DEFAULTS`, then the policy's."""
-    given = {k: v for k, v in given.items() if v is not None}
-    return for_policy(given.pop("algo", "bc"), **{**DAGGER_DEFAULTS, **given})
 
 
 # ================================================================================== the aggregate store
@@ -339,19 +272,13 @@ class Family:
         return {}
 
 
-FAMILIES = {"dagger": "demo.imitation.dagger:Family", "safedagger": "demo.imitation.safedagger:SafeDagger",
-            "aggrevate": "demo.imitation.aggrevate:AggreVaTe", "dart": "demo.imitation.dart:Dart",
-            "perturb": "demo.imitation.perturb:Perturb"}
-
-
 def make_family(name: str, options: dict[str, str] | None = None) -> Family:
-    """The family member ``name`` (:data:`FAMILIES`) with ``options`` (``--algo-opt KEY=VALUE``: text
-    parsed to the type of the field's default; ``none`` for None)."""
-    import importlib
-
-    if name not in FAMILIES:
-        raise DemoError("--algo", f"unknown member of the DAgger family {name!r} (choose from {', '.join(FAMILIES)})")
-    module, _, cls_name = FAMILIES[name].partition(":")
+    """The family member ``name`` (:data:`demo.imitation.config.FAMILY`) with ``options`` (``--algo-opt
+    KEY=VALUE``: text parsed to the type of the field's default; ``none`` for None)."""
+    if name not in FAMILY:
+        raise DemoError("--algo", f"unknown member of the DAgger family {name!r} (choose from {', '.join(FAMILY)})")
+    module, _, cls_name = FAMILY[name].plugin.partition(":")
+    # The members' modules import this one: looked up by name, not imported at the top.
     cls = getattr(importlib.import_module(module), cls_name)
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
     values: dict[str, Any] = {}

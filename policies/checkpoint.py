@@ -39,6 +39,7 @@ from safetensors.torch import load_file, save_file
 
 from demo.errors import DemoError
 from demo.jsonio import replace_atomically, write_json
+from demo.sim.robot_record import resolve_robot, robot_record
 from demo.store import ActionSpec
 from demo.store.robot_files import copy_robot_files, file_table, same_robot
 from demo.policies.actor import ExecConfig, PolicyActor
@@ -46,6 +47,7 @@ from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.policy import Policy, PolicySpec, build_policy, config_to_json, policy_config
 from demo.policies.relative import RelativeActions
+from demo.policies.visuomotor import encoder_record
 
 RUN_FORMAT = "demo-run"
 RUN_VERSION = 1
@@ -90,8 +92,6 @@ def policy_record(
     relative: RelativeActions | None = None,
 ) -> dict[str, Any]:
     """The part of run.json that rebuilds the policy."""
-    from demo.policies.visuomotor import encoder_record
-
     encoder = encoder_record(policy)
     return {
         "algo": algo,
@@ -167,8 +167,6 @@ def run_robot(record: dict[str, Any] | None, store_path: str | Path, override: s
     it. A store that records robot files which cannot be found fails here, before anything is
     written, with one line naming the missing file; the built-in arm and records without files pass.
     """
-    from demo.sim.robot_record import resolve_robot, robot_record
-
     if override is not None:
         return robot_record(resolve_robot(record, override))
     if file_table(record, store_path):

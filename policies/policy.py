@@ -96,7 +96,7 @@ POLICY_MODULES: dict[str, str] = {
     "bc": "demo.policies.mlp",
     "diffusion": "demo.policies.diffusion",
     "act": "demo.policies.act",
-    "ppo": "demo.rl.ppo",  # the Gaussian policy of PPO, GAIL, AIRL and linear IRL runs
+    "ppo": "demo.policies.gaussian",  # the Gaussian policy of PPO, GAIL, AIRL and linear IRL runs
 }
 
 
@@ -115,12 +115,7 @@ def register_policy(name: str):
 
 def policy_class(name: str) -> type[Policy]:
     if name not in _REGISTRY and name in POLICY_MODULES:
-        try:
-            importlib.import_module(POLICY_MODULES[name])
-        except ModuleNotFoundError as exc:
-            if exc.name == POLICY_MODULES[name]:
-                raise DemoError("--algo", f"policy {name!r} is not built yet") from None
-            raise
+        importlib.import_module(POLICY_MODULES[name])
     if name not in _REGISTRY:
         known = sorted(set(_REGISTRY) | set(POLICY_MODULES))
         raise DemoError("--algo", f"unknown policy {name!r} (known: {', '.join(known)})")
@@ -150,7 +145,7 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
     if config is None or isinstance(config, dict):
         config = policy_config(name, config)
     if spec.images:
-        from demo.policies.visuomotor import VisuomotorPolicy, encoder_config
+        from demo.policies.visuomotor import VisuomotorPolicy, encoder_config  # deferred: cycle (visuomotor imports this module)
 
         return VisuomotorPolicy(spec, config, cls, encoder_config(encoder))
     return cls(spec, config)

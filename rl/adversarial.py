@@ -71,71 +71,30 @@ paper's reward stays the default.
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
+import torch
 from torch import nn
 from torch.nn import functional as F
 
 from demo.errors import DemoError
 from demo.jsonio import replace_atomically
-from demo.progress import Progress
-from demo.sim.tasks import TASKS
-from demo.rl.expert_data import ExpertData
+from demo.policies.gaussian import mlp
 from demo.policies.normalizer import OBS_CLIP
 from demo.policies.observation import ObsSpec
-from demo.rl.ppo import MIN_STD, PPOConfig, RLRun, Rollout, mlp
+from demo.progress import Progress
+from demo.rl.config import KINDS, AdversarialConfig
+from demo.rl.expert_data import ExpertData
+from demo.rl.ppo import MIN_STD, RLRun, Rollout
 from demo.rl.rewards import pearson
+from demo.sim.tasks import TASKS
 
-KINDS = ("gail", "airl")
-GAIL_REWARDS = ("softplus", "logit")
-AIRL_REWARDS = ("logit", "f")
 GAIL_INPUTS = {"sa": ("obs", "actions"), "ss": ("obs", "next_obs"), "s": ("next_obs",)}  # what D_net reads
 REWARD_FILE = "reward.safetensors"
-
-
-@dataclass
-class AdversarialConfig:
-    rl: PPOConfig = field(default_factory=PPOConfig)
-    data: str = ""  # the demonstrations (a store of the task, in the policy's action representation)
-    kind: str = "gail"  # gail | airl
-    demos: int | None = None  # the first N successful episodes (default all)
-    inputs: str = "s"  # GAIL's discriminator input: sa (s, a), ss (s, s') or s (s'); AIRL is always (s, s') + log pi
-    # the state the discriminator reads (ObsSpec keys); default the task's relative_goal_keys, else the policy's
-    disc_obs_keys: tuple[str, ...] = ()
-    disc_hidden: tuple[int, ...] = (256, 256)
-    disc_lr: float = 3e-4
-    disc_epochs: int = 2  # passes over each iteration's rollout
-    disc_batch: int = 256  # policy (and as many expert) samples per discriminator step
-    grad_penalty: float = 1.0
-    init_bc: bool = True
-    bc_steps: int = 2000
-    gail_reward: str = "logit"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
-    airl_reward: str = "logit"  # airl: logit (f - log pi, the paper's) | f (without the entropy term)
-
-    def check(self) -> None:
-        self.rl.check()
-        if self.kind not in KINDS:
-            raise DemoError("--algo", f"adversarial imitation is {' or '.join(KINDS)}, not {self.kind!r}")
-        if self.gail_reward not in GAIL_REWARDS:
-            raise DemoError("--gail-reward", f"GAIL's reward is {' or '.join(GAIL_REWARDS)}, not {self.gail_reward!r}")
-        if self.airl_reward not in AIRL_REWARDS:
-            raise DemoError("--airl-reward", f"AIRL's reward is {' or '.join(AIRL_REWARDS)}, not {self.airl_reward!r}")
-        if self.inputs not in GAIL_INPUTS:
-            raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a), ss (s, s') or s (s'), not {self.inputs!r}")
-        if self.disc_epochs < 1 or self.disc_batch < 1 or self.grad_penalty < 0 or self.bc_steps < 0:
-            raise DemoError("--disc-epochs", "disc_epochs and disc_batch must be >= 1, grad_penalty and bc_steps >= 0")
-
-    def to_json(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["rl"], d["disc_hidden"], d["disc_obs_keys"] = self.rl.to_json(), list(self.disc_hidden), list(self.disc_obs_keys)
-        return d
 
 
 # ====================================================================================== the discriminator

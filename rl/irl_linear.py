@@ -29,9 +29,7 @@ expectations), so they run as well on a small MDP solved exactly (the tests).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,35 +37,12 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.progress import Progress
-from demo.rl.ppo import PPOConfig, RLRun, Rollout
+from demo.rl.config import LinearIRLConfig
+from demo.rl.ppo import RLRun, Rollout
 from demo.rl.rewards import pearson
 
-METHODS = ("maxent", "apprenticeship")
 WEIGHTS_PLOT = "weights.png"
 Solver = Callable[[np.ndarray], np.ndarray]  # reward weights -> feature expectations of the policy trained on them
-
-
-@dataclass
-class LinearIRLConfig:
-    rl: PPOConfig = field(default_factory=PPOConfig)
-    data: str = ""
-    method: str = "maxent"  # maxent | apprenticeship
-    demos: int | None = None
-    inner_iterations: int = 5  # PPO iterations per reward update
-    lr: float = 0.05  # maxent: Adam step on w
-    l2: float = 0.0  # maxent: L2 penalty on w
-
-    def check(self) -> None:
-        self.rl.check()
-        if self.method not in METHODS:
-            raise DemoError("--algo", f"linear IRL is {' or '.join(METHODS)}, not {self.method!r}")
-        if self.inner_iterations < 1 or self.lr <= 0 or self.l2 < 0:
-            raise DemoError("--inner-iterations", "inner_iterations must be >= 1, lr > 0, l2 >= 0")
-
-    def to_json(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["rl"] = self.rl.to_json()
-        return d
 
 
 # ====================================================================================== feature expectations

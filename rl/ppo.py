@@ -45,153 +45,37 @@ critic, the optimiser and the running statistics (tensors only).
 
 from __future__ import annotations
 
-import dataclasses
-import math
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+import math
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
-from torch.distributions import Normal
 
 from demo.errors import DemoError
-from demo.progress import Progress
-from demo.seeds import RL_OFFSET, episode_seed
-from demo.store import ActionSpec
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
+from demo.policies.gaussian import GaussianConfig, GaussianPolicy, mlp
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import ObsSpec
-from demo.policies.policy import Policy, PolicySpec, register_policy
+from demo.policies.policy import PolicySpec
 from demo.policies.relative import RelativeActions
+from demo.progress import Progress
+from demo.rl.config import PPOConfig
 from demo.rl.rewards import TaskReward, pearson, task_reward
+from demo.seeds import RL_OFFSET, episode_seed
+from demo.sim.robot_record import robot_record
+from demo.store import ActionSpec
+from demo.training.run import Run
 
 MIN_STD = 0.01  # floor of the observation std (data units: m, rad, 1), so a constant input stays near 0
-ACTIONS = ("ee7", "joint_pos")
 
 
-# ====================================================================================== configuration
-@dataclass
-class PPOConfig:
-    """Everything a PPO run (and the RL inside GAIL, AIRL and linear IRL) is trained with."""
-
-    task: str = "reach"
-    task_options: dict[str, Any] = field(default_factory=dict)
-    robot: str | None = None  # robot config TOML; default the built-in arm
-    out: str = ""
-    reward: str = "task"  # the dense task reward (demo.rl.rewards); IRL algorithms bring their own
-    action: str = "joint_pos"  # joint_pos | ee7 (module docstring)
-    obs_keys: tuple[str, ...] = ()  # default: demo.policies.observation's state keys
-    seed: int = 0
-    total_steps: int = 480_000  # environment (control) steps; reach: 92/100 in demo eval after 480,000 (28 min, shared CPU)
-    num_envs: int = 16
-    num_steps: int = 100  # control steps per environment per iteration (reach's horizon)
-    epochs: int = 10
-    minibatches: int = 8
-    lr: float = 3e-4
-    anneal_lr: bool = True
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-    target_kl: float | None = None  # stop an iteration's epochs once the approximate KL exceeds it
-    norm_reward: bool = True  # scale rewards by a running std of the discounted return
-    hidden: tuple[int, ...] = (256, 256)  # actor and critic MLP widths (tanh)
-    init_log_std: float = -1.0  # initial log std of the Gaussian, normalised action units (std 0.37)
-    max_ee_step: float = 0.02  # m per control step: the ee7 position bound
-    max_rot_step: float = 0.1  # rad per control step: the ee7 rotation bound
-    max_joint_step: float = 0.1  # rad per control step: the joint_pos bound (relative to the measured joints)
-    eval_every: int = 10  # iterations between rollout evaluations (0: only at the end)
-    eval_episodes: int = 20
-    threads: int = 1
-
-    def check(self) -> None:
-        if self.action not in ACTIONS:
-            raise DemoError("--action", f"RL acts in {' or '.join(ACTIONS)}, not {self.action!r}")
-        positive = {"total_steps": self.total_steps, "num_envs": self.num_envs, "num_steps": self.num_steps,
-                    "epochs": self.epochs, "minibatches": self.minibatches, "eval_episodes": self.eval_episodes}
-        for name, value in positive.items():
-            if value < 1:
-                raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
-        if self.num_envs * self.num_steps < self.minibatches:
-            raise DemoError("--minibatches", "more minibatches than transitions per iteration")
-        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1 and self.clip > 0 and self.lr > 0):
-            raise DemoError("--gamma", "needs 0 < gamma <= 1, 0 <= gae_lambda <= 1, clip > 0 and lr > 0")
-        if min(self.max_ee_step, self.max_rot_step, self.max_joint_step) <= 0:
-            raise DemoError("--max-ee-step", "action bounds must be > 0")
-
-    @property
-    def batch(self) -> int:
-        return self.num_envs * self.num_steps
-
-    @property
-    def iterations(self) -> int:
-        return max(1, math.ceil(self.total_steps / self.batch))
-
-    def to_json(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["obs_keys"], d["hidden"] = list(self.obs_keys), list(self.hidden)
-        return d
-
-
-# ====================================================================================== the networks
-def mlp(sizes: Sequence[int], out_gain: float) -> nn.Sequential:
-    """tanh MLP with orthogonal weights (gain sqrt 2; ``out_gain`` on the last layer), zero biases."""
-    layers: list[nn.Module] = []
-    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-        linear = nn.Linear(a, b)
-        nn.init.orthogonal_(linear.weight, out_gain if i == len(sizes) - 2 else math.sqrt(2))
-        nn.init.zeros_(linear.bias)
-        layers += [linear, nn.Tanh()]
-    return nn.Sequential(*layers[:-1])
-
-
-@dataclass
-class GaussianConfig:
-    hidden: tuple[int, ...] = (256, 256)
-    init_log_std: float = -1.0
-
-    def __post_init__(self) -> None:
-        self.hidden = tuple(int(h) for h in self.hidden)
-        if not self.hidden or min(self.hidden) < 1:
-            raise ValueError(f"hidden sizes must be positive, got {self.hidden}")
-
-
-@register_policy("ppo")
-class GaussianPolicy(Policy):
-    """A diagonal Gaussian over normalised actions: an MLP mean and a state-independent log std.
-
-    ``predict`` is the mean clipped to [-1, 1] (what is executed in evaluation); ``loss`` is the mean's
-    squared error to normalised actions (behaviour cloning, for ``--init-bc``)."""
-
-    Config = GaussianConfig
-
-    def __init__(self, spec: PolicySpec, config: GaussianConfig):
-        super().__init__(spec, config)
-        if spec.n_obs != 1 or spec.horizon != 1 or spec.images:
-            raise ValueError("the Gaussian policy reads one frame of low-dim state and acts one step")
-        self.mean = mlp([spec.obs_dim, *config.hidden, spec.action_dim], out_gain=0.01)
-        self.log_std = nn.Parameter(torch.full((spec.action_dim,), float(config.init_log_std)))
-
-    def distribution(self, obs: torch.Tensor) -> Normal:
-        """The action distribution for normalised observations ``[B, obs_dim]``."""
-        mean = self.mean(obs)
-        return Normal(mean, self.log_std.exp().expand_as(mean))
-
-    def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
-        return ((self.mean(obs[:, -1]) - action[:, 0]) ** 2).mean()
-
-    @torch.no_grad()
-    def predict(self, obs: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        return self.mean(obs[:, -1]).clamp(-1.0, 1.0)[:, None]
-
-
+# ====================================================================================== running statistics
 class RunningMeanStd:
     """Mean and variance of every vector seen (parallel Welford update), float64."""
 
@@ -473,26 +357,23 @@ def ppo_update(agent: Agent, obs_n: np.ndarray, actions: np.ndarray, logprobs: n
 RewardFn = Callable[[Rollout], np.ndarray]
 
 
-class RLRun:
-    """A run directory trained by RL: environments, agent, the loop, checkpoints (module docstring).
+class RLRun(Run):
+    """A run directory trained by RL: a :class:`Run` (directory, record, checkpoints, monitoring, summary)
+    over environments, an agent and the PPO loop (module docstring).
 
     ``name``: the algorithm recorded (``ppo``, ``gail``, ...); an algorithm adds what else the run
     records (e.g. the demonstrations its reward was learned from) to :attr:`record` before :meth:`open`.
     Ctrl-C saves a checkpoint of the last finished iteration."""
 
+    EVAL_LABEL = " (eval)"  # the progress field shows the training rollouts' success between evaluations
+
     def __init__(self, config: PPOConfig, *, name: str = "ppo", progress: Progress | None = None,
                  overwrite: bool = False, command: str | None = None):
-        from demo.sim.robot_record import robot_record
-        from demo.training.config import for_policy
-        from demo.training.trainer import TrainingRun
-
         config.check()
+        super().__init__(config.out, seed=config.seed, threads=config.threads, stage=f"train {name}",
+                         title=f"{name} on {config.task}", total_steps=config.iterations * config.batch,
+                         monitor_episodes=config.eval_episodes, progress=progress, overwrite=overwrite, command=command)
         self.config, self.name = config, name
-        tc = for_policy("ppo", out=config.out, seed=config.seed, threads=config.threads, device="cpu",
-                        eval_final=True, eval_episodes=config.eval_episodes)
-        self.run = TrainingRun(tc, progress=progress, overwrite=overwrite, command=command,
-                               total_steps=config.iterations * config.batch, name=name,
-                               title=f"{name} on {config.task}")
         self.pool = EnvPool(config, config.num_envs)
         self.reward = task_reward(config.task, "--task")
         self.action_norm = action_bounds(config, self.pool.n_arm)
@@ -500,7 +381,7 @@ class RLRun:
         self.rng = np.random.default_rng([config.seed, 0x990])
         self.scaler = RewardScaler(config.num_envs, config.gamma)
         self.steps = self.iteration = 0
-        self.metrics: dict[str, Any] = {"iterations": [], "eval": []}
+        self.metrics = {"iterations": [], "eval": []}
         env = self.pool.envs[0]
         self.record = {
             "algo": name,
@@ -516,18 +397,15 @@ class RLRun:
             "task_reward": self.reward.to_json(),
             "versions": {"torch": torch.__version__, "numpy": np.__version__},
         }
-        self._started = time.perf_counter()
 
-    def __enter__(self) -> "RLRun":
-        return self
-
-    def __exit__(self, kind: type | None, *exc: object) -> None:
+    def close(self) -> None:
         try:
-            if kind is KeyboardInterrupt and self.iteration > 0 and (Path(self.config.out) / ckpt.RUN_FILE).is_file():
-                self.checkpoint()
-        finally:
             self.pool.close()
-            self.run.__exit__(None)
+        finally:
+            super().close()
+
+    def can_checkpoint(self) -> bool:
+        return self.iteration > 0 and (self.out / ckpt.RUN_FILE).is_file()
 
     def demonstrations(self, path: str, demos: int | None = None) -> Any:
         """The first ``demos`` successful episodes of the store at ``path`` as transitions in this run's
@@ -542,11 +420,10 @@ class RLRun:
 
     def open(self) -> None:
         """Create the run directory and record the run (refusing one that holds something else)."""
-        self.run.open_directory()
-        out = Path(self.config.out)
+        self.open_directory()
         if self.record["robot"].get("files"):
-            ckpt.save_robot(out, self.record["robot"], self.record["robot"].get("source") or out)
-        ckpt.write_run(out, self.record)
+            ckpt.save_robot(self.out, self.record["robot"], self.record["robot"].get("source") or self.out)
+        self.write_record()
 
     # ---------------------------------------------------------------------------- the loop
     def learn(self, reward: RewardFn | None = None, before_update: Callable[[Rollout], dict[str, float]] | None = None
@@ -584,7 +461,7 @@ class RLRun:
         if (c.eval_every and it % c.eval_every == 0) or it == c.iterations:
             self.evaluate()
             self.checkpoint()
-        self.run.tick(done=self.steps, loss=entry["loss_policy"], val="", success=f"{entry['success']:.0%}",
+        self.tick(done=self.steps, loss=entry["loss_policy"], val="", success=f"{entry['success']:.0%}",
                       info=f"return {'-' if entry['task_return'] is None else format(entry['task_return'], '.4g')}, "
                            f"{entry['steps_per_s']:,.0f} steps/s")
         return roll
@@ -604,7 +481,7 @@ class RLRun:
             # how well a learned reward follows the dense task reward over this rollout (Pearson)
             "reward_corr": None if rewards is roll.task_reward else pearson(rewards, roll.task_reward),
             "std": float(self.agent.policy.log_std.detach().exp().mean()),
-            "seconds": time.perf_counter() - self._started,
+            "seconds": self.seconds,
             "steps_per_s": self.config.batch / max(collect_s, 1e-9),
             "update_s": seconds - collect_s,
             **{f"loss_{k}": v for k, v in stats.items()},
@@ -613,46 +490,41 @@ class RLRun:
         self.metrics["iterations"].append(entry)
         return entry
 
-    # ---------------------------------------------------------------------------- evaluation, saving
+    # ---------------------------------------------------------------------------- what the run saves
+    @property
+    def step(self) -> int:
+        return self.steps
+
     def bundle(self) -> ckpt.PolicyBundle:
         """The current policy (its mean), runnable as ``demo eval`` runs a saved one."""
         a = self.agent
         return ckpt.PolicyBundle("ppo", a.policy.eval(), self.pool.obs_spec, a.obs_norm, self.action_norm,
-                                 self.pool.action_spec, ExecConfig(), self.record, Path(self.config.out),
-                                 self.pool.relative)
+                                 self.pool.action_spec, ExecConfig(), self.record, self.out, self.pool.relative)
 
-    def evaluate(self) -> dict[str, Any] | None:
-        """Success of the policy's mean on the monitoring seeds (``eval_episodes``), as ``demo eval`` runs it."""
-        monitor = self.run.monitor
-        if monitor is None:
-            return None
-        result = monitor(self.bundle())
+    def after_evaluation(self) -> None:
         self.agent.policy.train()
-        entry = {"step": self.steps, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
-        self.metrics["eval"].append(entry)
-        self.run.tick(done=self.steps, success=f"{result['successes']}/{result['episodes']} (eval)")
-        return entry
 
-    def checkpoint(self, extra: dict[str, torch.Tensor] | None = None) -> None:
-        """The policy with its normalisers, the train state (critic, optimiser, statistics), metrics, curves."""
-        out, a = Path(self.config.out), self.agent
-        ckpt.save_policy(out, a.policy.state_dict(), a.obs_norm, self.action_norm)
-        ckpt.save_train_state(out, {"step": self.steps, "policy": a.policy.state_dict(),
-                                    "critic": a.critic.state_dict(), "optimizer": a.optimizer.state_dict(),
-                                    **a.obs_rms.state("obs_rms"), **(extra or {})})
-        ckpt.write_json(out / ckpt.METRICS_FILE, self.metrics)
-        plot_rl(self.metrics, out / ckpt.CURVES_FILE, title=f"{self.name} on {self.config.task}")
+    def policy_weights(self) -> tuple[dict[str, torch.Tensor], MinMaxNormalizer, MinMaxNormalizer]:
+        return self.agent.policy.state_dict(), self.agent.obs_norm, self.action_norm
 
-    def finish(self, extra: dict[str, torch.Tensor] | None = None, **final: Any) -> dict[str, Any]:
+    def train_state(self, extra: dict[str, torch.Tensor] | None) -> dict[str, Any]:
+        """The critic, optimiser and observation statistics besides the policy (and an algorithm's ``extra``)."""
+        a = self.agent
+        return {"step": self.steps, "policy": a.policy.state_dict(), "critic": a.critic.state_dict(),
+                "optimizer": a.optimizer.state_dict(), **a.obs_rms.state("obs_rms"), **(extra or {})}
+
+    def plot(self, path: Path) -> None:
+        plot_rl(self.metrics, path, title=f"{self.name} on {self.config.task}")
+
+    def final_metrics(self) -> dict[str, Any]:
         last = self.metrics["eval"][-1] if self.metrics["eval"] else {}
         tail = self.metrics["iterations"][-5:]
         corr = {f"{k}_last5": float(np.mean([e[k] for e in tail])) for k in ("reward_corr", "g_corr")
                 if tail and all(e.get(k) is not None for e in tail)}
-        self.metrics["final"] = {"env_steps": self.steps, "seconds": time.perf_counter() - self._started,
-                                 "success_rate": last.get("success_rate"), "eval_episodes": last.get("episodes"),
-                                 **corr, **final}
-        ckpt.write_run(Path(self.config.out), self.record)
-        self.checkpoint(extra)
+        return {"env_steps": self.steps, "seconds": self.seconds, "success_rate": last.get("success_rate"),
+                "eval_episodes": last.get("episodes"), **corr}
+
+    def summary(self) -> dict[str, Any]:
         return {"out": self.config.out, "algo": self.name, **self.metrics["final"]}
 
 

@@ -38,6 +38,7 @@ from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
 from demo.sim.scene import compile_scene, scene_spec
 from demo.sim.task import Expert, Task
+from demo.sim.tasks import TASKS
 from demo.store import ActionSpec, FeatureSpec
 
 CONTROL_HZ = 20.0
@@ -418,8 +419,6 @@ def make_env(
     ``top``, ``wrist``; images are ``obs.image_<name>`` uint8 [height, width, 3]. Headless rendering
     uses EGL (``demo.sim`` sets ``MUJOCO_GL=egl`` when unset).
     """
-    from demo.sim.tasks import TASKS
-
     if task not in TASKS:
         raise DemoError(task, f"unknown task (known: {', '.join(TASKS)})")
     return Env(TASKS[task](**task_options), load_robot(robot), cameras)

@@ -109,14 +109,14 @@ def _headless_gl() -> None:
     if os.environ.get("MUJOCO_GL", "egl").lower() != "egl":
         return
     try:
-        from mujoco.rendering.classic import gl_context
+        from mujoco.rendering.classic import gl_context  # deferred: only when rendering headless
     except ImportError:
         return
     current = getattr(gl_context, "GLContext", None)
     if current is None or not getattr(current, "__module__", "").startswith("mujoco.glfw"):
         return
     try:
-        from mujoco.egl import GLContext as EGLContext
+        from mujoco.egl import GLContext as EGLContext  # deferred: binds PyOpenGL to EGL, only when GLFW was chosen
     except Exception:  # PyOpenGL already bound to another platform: keep GLFW, fail with a hint
         return
     gl_context.GLContext = EGLContext

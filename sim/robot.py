@@ -1,4 +1,8 @@
-"""Robot configs: what `demo` needs to know about an MJCF arm with a gripper.
+"""Robot configs: what `demo` needs to know about an MJCF arm with a gripper, read from TOML keys.
+
+This module parses and checks the keys (:func:`load_robot`, :func:`robot_from_keys`) into a
+:class:`RobotConfig`; building the robot's MjSpec/model from it and checking the model's names and
+actuators is :mod:`demo.sim.robot_model`, whose public names are importable from here too.
 
 A robot config is a small TOML file (paths relative to it)::
 
@@ -72,9 +76,25 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from demo.errors import DemoError, one_line
-from demo.sim.actuation import add_pd_layer, is_motor, is_position_servo, kind_of
+from demo.errors import DemoError
 from demo.sim.geometry import lookat_quat
+from demo.sim.robot_model import (
+    arm_actuator_for,
+    home_qpos_vector,
+    is_descendant,
+    mujoco_message,
+    position_gain,
+    robot_spec,
+    validated,
+)
+
+# The model-side names (robot_spec ... arm_actuator_for) are defined in demo.sim.robot_model and
+# re-exported: callers import them from here.
+__all__ = [
+    "ASSETS", "BUILTIN_CONFIG", "DEFAULT_WRIST_CAMERA", "PACKAGE_SCHEME", "RobotConfig", "WristCamera",
+    "config_keys", "load_robot", "mjcf_location", "robot_from_keys",
+    "arm_actuator_for", "home_qpos_vector", "is_descendant", "mujoco_message", "position_gain", "robot_spec",
+]
 
 ASSETS = Path(__file__).resolve().parent / "assets"
 BUILTIN_CONFIG = ASSETS / "panda.toml"
@@ -85,7 +105,6 @@ _ONE_OF = (
     (("gripper_actuator", "gripper_actuators"), 'gripper_actuator = "NAME" (or gripper_actuators = ["LEFT", "RIGHT"])'),
     (("home_key", "home"), 'home_key = "KEYFRAME" (or home = [one angle per arm joint, rad])'),
 )
-_HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 _OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera",
              "gripper_actuator", "gripper_actuators", "home_key", "home", "base_pos", "base_quat", "pd_kp", "pd_kd",
              "gripper_mjcf", "gripper_mount")
@@ -157,102 +176,6 @@ class RobotConfig:
     def spec(self) -> mujoco.MjSpec:
         """A fresh MjSpec of the robot MJCF, with the configured EE site added if asked."""
         return robot_spec(self)
-
-
-def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
-    """The robot MJCF as a spec: the configured EE site added, motor actuators made PD servos."""
-    spec = _file_spec(robot)
-    model = _compile(robot, spec)
-    motors = [a for a in _driving_actuators(model, robot) if is_motor(model, a)]
-    if motors:
-        add_pd_layer(spec, model, home_qpos_vector(model, robot), motors, robot.pd_kp, robot.pd_kd, robot.config_path)
-    return spec
-
-
-def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
-    """The MJCF as written, plus the configured EE site."""
-    try:
-        spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
-    except Exception as exc:  # mujoco raises ValueError with the parser's (multi-line) message
-        raise DemoError(robot.mjcf_path, f"MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
-    if robot.gripper_mjcf is not None:
-        _attach_gripper(robot, spec)
-    if robot.ee_site_body:
-        body = spec.body(robot.ee_site_body)
-        if body is None:
-            raise DemoError(robot.config_path, f"ee_site_body '{robot.ee_site_body}' is not a body in {robot.mjcf_path.name}; "
-                                               "name a body of the hand (the EE site is added to it)")
-        body.add_site(name=robot.ee_site, pos=list(robot.ee_site_pos), quat=list(robot.ee_site_quat), size=[0.006, 0, 0])
-    return spec
-
-
-def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
-    """Attach ``gripper_mjcf`` (compiled on its own terms, names kept) to the arm body ``gripper_mount``."""
-    try:
-        gripper = mujoco.MjSpec.from_file(str(robot.gripper_mjcf))
-    except Exception as exc:
-        raise DemoError(robot.gripper_mjcf, f"gripper MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
-    mount = spec.body(str(robot.gripper_mount))
-    if mount is None:
-        raise DemoError(robot.config_path, f"gripper_mount '{robot.gripper_mount}' is not a body in {robot.mjcf_path.name}; "
-                                           "name the arm's flange body")
-    for key in list(gripper.keys):
-        gripper.delete(key)
-    for name in (n for n in dir(spec.option) if not n.startswith("_")):  # the arm's options win, silently
-        setattr(gripper.option, name, getattr(spec.option, name))
-    spec.attach(gripper, prefix="", frame=mount.add_frame())
-
-
-def _compile(robot: RobotConfig, spec: mujoco.MjSpec) -> mujoco.MjModel:
-    try:
-        return spec.compile()
-    except Exception as exc:
-        raise DemoError(robot.mjcf_path, f"MJCF does not compile: {mujoco_message(exc)}{_named_by(robot)}") from None
-
-
-def _driving_actuators(model: mujoco.MjModel, robot: RobotConfig) -> list[int]:
-    """The actuators `demo` commands: each arm joint's, then the gripper's (names not found are skipped)."""
-    out = []
-    for name in robot.arm_joints:
-        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
-        a = _joint_actuator(model, j) if j >= 0 else None
-        if a is not None:
-            out.append(a)
-    for name, _ in robot.grippers:
-        a = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
-        if a >= 0 and a not in out:
-            out.append(a)
-    return out
-
-
-def _joint_actuator(model: mujoco.MjModel, joint_id: int) -> int | None:
-    """The first actuator whose transmission is the joint itself."""
-    for a in range(model.nu):
-        if int(model.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and model.actuator_trnid[a, 0] == joint_id:
-            return a
-    return None
-
-
-def home_qpos_vector(model: mujoco.MjModel, robot: RobotConfig) -> np.ndarray:
-    """The robot model's qpos at home: its keyframe ``home_key``, else ``qpos0`` with ``home`` on the arm."""
-    if robot.home_key is not None:
-        key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, robot.home_key)
-        return model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
-    q = model.qpos0.copy()
-    for name, value in zip(robot.arm_joints, robot.home):
-        j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
-        if j >= 0:
-            q[model.jnt_qposadr[j]] = value
-    return q
-
-
-def mujoco_message(exc: BaseException) -> str:
-    """MuJoCo's parser/compiler message on one line, without its ``Error:`` prefixes."""
-    return one_line(str(exc).replace("Error: ", "")) or type(exc).__name__
-
-
-def _named_by(robot: RobotConfig) -> str:
-    return f" (named by {robot.config_path})" if robot.config_path and robot.config_path != robot.mjcf_path else ""
 
 
 def _floats(where: Path, key: str, value: Any, n: int | None = None) -> tuple[float, ...]:
@@ -349,7 +272,7 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         max_joint_velocity=vmax,
         wrist_camera=_wrist_camera(where, raw.get("wrist_camera")),
     )
-    return _validated(robot)
+    return validated(robot)
 
 
 PACKAGE_SCHEME = "pkg://"
@@ -467,119 +390,3 @@ def config_keys(robot: RobotConfig, mjcf: str, gripper_mjcf: str | None = None) 
         cam = robot.wrist_camera
         keys["wrist_camera"] = cam if isinstance(cam, str) else {"pos": list(cam.pos), "quat": list(cam.quat), "fovy": cam.fovy}
     return keys
-
-
-def _validated(robot: RobotConfig) -> RobotConfig:
-    """Compile the robot alone, check every name and actuator, and read its home configuration.
-
-    Each error names the config key (or the MJCF element) at fault and what to write instead.
-    """
-    where = robot.config_path
-    file_model = _compile(robot, _file_spec(robot))
-    fname = robot.mjcf_path.name
-
-    def need(kind: mujoco.mjtObj, name: str, what: str, key: str) -> int:
-        i = mujoco.mj_name2id(file_model, kind, name)
-        if i < 0:
-            raise DemoError(where, f"{what} '{name}' not found in {fname}; fix '{key}' ({_names_hint(file_model, kind)})")
-        return i
-
-    for name in robot.arm_joints:
-        jid = need(mujoco.mjtObj.mjOBJ_JOINT, name, "arm joint", "arm_joints")
-        if int(file_model.jnt_type[jid]) not in _HINGE_SLIDE:
-            raise DemoError(where, f"arm joint '{name}' must be a hinge or slide joint; fix 'arm_joints'")
-    for name, _ in robot.grippers:
-        need(mujoco.mjtObj.mjOBJ_ACTUATOR, name, "gripper actuator", "gripper_actuators" if robot.gripper_actuators else "gripper_actuator")
-    site = need(mujoco.mjtObj.mjOBJ_SITE, robot.ee_site, "ee site", "ee_site")
-    need(mujoco.mjtObj.mjOBJ_BODY, robot.base_body, "base body", "base_body")
-    key = -1
-    if robot.home_key is not None:
-        key = mujoco.mj_name2id(file_model, mujoco.mjtObj.mjOBJ_KEY, robot.home_key)
-        if key < 0:
-            raise DemoError(where, f"home keyframe '{robot.home_key}' not found in {fname}; fix 'home_key' "
-                                   f"({_names_hint(file_model, mujoco.mjtObj.mjOBJ_KEY)}), or write home = [one angle per arm joint]")
-    if isinstance(robot.wrist_camera, str):
-        need(mujoco.mjtObj.mjOBJ_CAMERA, robot.wrist_camera, "wrist_camera", "wrist_camera")
-    if robot.wrist_camera != "wrist" and mujoco.mj_name2id(file_model, mujoco.mjtObj.mjOBJ_CAMERA, "wrist") >= 0:
-        raise DemoError(where, f"{fname} has a camera named 'wrist' that wrist_camera does not name: "
-                               "set wrist_camera = \"wrist\" to render it as the wrist camera, or rename it")
-
-    model = _compile(robot, robot_spec(robot))  # with the PD layer, if the robot has motors
-    for name in robot.arm_joints:
-        arm_actuator_for(model, model.joint(name).id, name, where)
-    ee_body = int(model.site_bodyid[site])
-    for name, (open_, closed) in robot.grippers:
-        act = model.actuator(name).id
-        position_gain(model, act, name, where)
-        _check_gripper(model, act, name, (open_, closed), ee_body, robot)
-
-    q = home_qpos_vector(model, robot)
-    home = {model.joint(j).name: float(q[model.jnt_qposadr[j]]) for j in range(model.njnt) if int(model.jnt_type[j]) in _HINGE_SLIDE}
-    first = model.actuator(robot.gripper_actuator).id
-    open_, closed = robot.gripper_range
-    ctrl = float(model.key_ctrl[key, first]) if key >= 0 and model.nu else open_
-    grip = float(np.clip((ctrl - open_) / (closed - open_), 0.0, 1.0)) + 0.0
-    object.__setattr__(robot, "home_qpos", home)
-    object.__setattr__(robot, "home_gripper", grip)
-    return robot
-
-
-def _names_hint(model: mujoco.MjModel, kind: mujoco.mjtObj) -> str:
-    """'it has: a, b, c' for error messages (the first few names of that kind in the model)."""
-    count = {mujoco.mjtObj.mjOBJ_JOINT: model.njnt, mujoco.mjtObj.mjOBJ_ACTUATOR: model.nu, mujoco.mjtObj.mjOBJ_SITE: model.nsite,
-             mujoco.mjtObj.mjOBJ_BODY: model.nbody, mujoco.mjtObj.mjOBJ_KEY: model.nkey, mujoco.mjtObj.mjOBJ_CAMERA: model.ncam}[kind]
-    names = [n for n in (mujoco.mj_id2name(model, kind, i) for i in range(count)) if n]
-    if not names:
-        return "it has none"
-    return "it has: " + ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
-
-
-def _check_gripper(model: mujoco.MjModel, act: int, name: str, rng: tuple[float, float], ee_body: int, robot: RobotConfig) -> None:
-    """A gripper actuator must move a finger (a joint below the EE site's body) and its range must be
-    commandable (open and closed inside the actuator's ctrl range)."""
-    where = robot.config_path
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    start, n = int(data.moment_rowadr[act]), int(data.moment_rownnz[act])
-    dofs = [int(d) for d, v in zip(data.moment_colind[start:start + n], data.actuator_moment[start:start + n]) if v != 0]
-    bodies = {int(model.dof_bodyid[d]) for d in dofs}
-    if not any(is_descendant(model, b, ee_body) for b in bodies):
-        moved = ", ".join(sorted(model.body(b).name for b in bodies)) or "nothing"
-        raise DemoError(where, f"gripper actuator '{name}' cannot close the gripper: it moves {moved}, no finger below "
-                               f"the EE site's body '{model.body(ee_body).name}'; name the finger actuator in 'gripper_actuator'")
-    if model.actuator_ctrllimited[act]:
-        lo, hi = (float(v) for v in model.actuator_ctrlrange[act])
-        for label, value in zip(("open", "closed"), rng):
-            if not lo - 1e-9 <= value <= hi + 1e-9:
-                raise DemoError(where, f"gripper_range {label} value {value:g} lies outside actuator '{name}' ctrlrange "
-                                       f"[{lo:g}, {hi:g}], so the gripper cannot {'open' if label == 'open' else 'close'}; "
-                                       f"write gripper_range = [open, closed] within it")
-
-
-def is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
-    """Whether ``body`` lies strictly below ``ancestor`` in the kinematic tree."""
-    while body > 0:
-        body = int(model.body_parentid[body])
-        if body == ancestor:
-            return True
-    return False
-
-
-def position_gain(model: mujoco.MjModel, act: int, name: str, where: Path | None) -> tuple[float, float]:
-    """(scale, offset) with equilibrium actuator length = scale * ctrl + offset (position servo)."""
-    if not is_position_servo(model, act):
-        raise DemoError(where, f"actuator '{name}' is a {kind_of(model, act)}, not a position actuator (gain kp, bias -kp) "
-                               "or a motor; give it a <position> or <motor> actuator in the MJCF")
-    gain = float(model.actuator_gainprm[act, 0])
-    b0, b1 = float(model.actuator_biasprm[act, 0]), float(model.actuator_biasprm[act, 1])
-    return gain / -b1, b0 / -b1
-
-
-def arm_actuator_for(model: mujoco.MjModel, joint_id: int, joint_name: str, where: Path | None) -> int:
-    """The position actuator that drives ``joint_id`` directly (transmission = the joint)."""
-    a = _joint_actuator(model, joint_id)
-    if a is None:
-        raise DemoError(where, f"arm joint '{joint_name}' has no position actuator driving it (an actuator with "
-                               f"joint=\"{joint_name}\"); fix 'arm_joints' or give it a <position> or <motor> actuator")
-    position_gain(model, a, model.actuator(a).name or f"#{a}", where)
-    return a

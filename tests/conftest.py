@@ -86,3 +86,24 @@ def reach_demos(tmp_path_factory: pytest.TempPathFactory):
         return made[episodes]
 
     return make
+
+
+@pytest.fixture
+def one_line_error(capsys: pytest.CaptureFixture[str]):
+    """``check(argv, *needles, rc=None) -> line``: run ``demo ARGV`` in-process; it must fail (with exit code
+    ``rc``, or any non-zero one) printing exactly one line on stderr, ``error: ...``, that holds every needle
+    (and no traceback); return that line."""
+    from demo.cli.main import main
+
+    def check(argv: list[str], *needles: str, rc: int | None = None) -> str:
+        capsys.readouterr()  # what came before is not this command's
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert (code == rc) if rc is not None else (code != 0), (code, err)
+        assert err.startswith("error: ") and err.endswith("\n") and len(err.splitlines()) == 1, err
+        assert "Traceback" not in err, err
+        for needle in needles:
+            assert needle in err, (needle, err)
+        return err.strip()
+
+    return check

@@ -106,49 +106,77 @@ IMAGE_DEFAULTS: dict[str, dict[str, Any]] = {
 DAGGER_DEFAULTS: dict[str, Any] = {"chunk": 1, "ensemble": False}
 
 
+def setting(default: Any = None, help: str = "", *, flag: str | None = None, metavar: str | None = None,
+            unset: str | None = None, resume: bool = True, default_factory: Any = None) -> Any:
+    """A configuration field and its command-line option in one place.
+
+    ``help`` (and ``flag``, default ``--field-name``; ``metavar``; ``unset``: what ``None`` means, shown
+    as the default) make it an option of the command that fills this config (``demo train`` builds its
+    options from these, :mod:`demo.cli.config_options`); a field without ``help`` is set another way
+    (the command says how). ``resume=False``: ``--resume`` may change it (it does not shape the
+    training so far: the step count, execution, monitoring, where it runs)."""
+    metadata = {"resume": resume}
+    if help:
+        metadata.update(help=help, flag=flag, metavar=metavar, unset=unset)
+    if default_factory is not None:
+        return field(default_factory=default_factory, metadata=metadata)
+    return field(default=default, metadata=metadata)
+
+
 @dataclass
 class TrainConfig:
     """Every hyperparameter of a training run. ``None`` = the policy's default (see :func:`for_policy`)."""
 
+    # ---- what and where (set by demo train's arguments: STORE..., --out, --algo, --policy-opt/--head, --encoder/--crop)
     data: str | tuple[str, ...] = ""  # episode store, or several trained on as one (demo.training.data.prepare_union)
     out: str = ""  # run directory
     algo: str = "bc"  # registered policy (demo.policies.policy): bc (MLP), diffusion, ...
     policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
     # Image encoders, for stores with cameras (demo.policies.encoders.EncoderConfig fields, e.g. {"backbone": "resnet18"})
     encoder: dict[str, Any] = field(default_factory=dict)
-    seed: int = 0
-    # ---- tuned per policy (None until resolved)
-    steps: int | None = None  # optimiser steps
-    batch_size: int | None = None  # windows per batch, per process when data-parallel (global: N x this; lr unchanged)
-    lr: float | None = None  # peak learning rate (AdamW, linear warm-up, cosine decay)
-    weight_decay: float | None = None  # AdamW weight decay (not on biases and norms)
-    warmup_steps: int | None = None
-    ema: float | None = None  # EMA decay of the weights used for evaluation (e.g. 0.995); 0 = off
-    n_obs: int | None = None  # observation history (frames)
-    chunk: int | None = None  # actions predicted per query (action chunking when > 1)
-    execute: int | None = None  # actions executed per query (receding horizon)
-    ensemble: bool | None = None  # temporal ensembling of overlapping chunks at execution (ACT)
-    candidates: int | None = None  # chunks a sampling policy draws per query, the most coherent kept (demo.policies.actor)
+    seed: int = setting(0, "Seed of initialisation, batches, split and rollouts.")
+    # ---- tuned per policy (None until resolved; the defaults shown are POLICY_DEFAULTS')
+    steps: int | None = setting(None, "Optimiser steps (DAgger: round 0).", resume=False)
+    # windows per batch, per process when data-parallel (global: N x this; lr unchanged)
+    batch_size: int | None = setting(None, "Windows per batch.")
+    lr: float | None = setting(None, "Peak learning rate (AdamW, warm-up then cosine).")
+    weight_decay: float | None = setting(None, "AdamW weight decay, not on biases.")
+    warmup_steps: int | None = setting(None, "Warm-up steps.", flag="--warmup")
+    ema: float | None = setting(None, "EMA decay of the weights used for evaluation; 0 = off.")
+    n_obs: int | None = setting(None, "Observation history in frames.")
+    chunk: int | None = setting(None, "Actions predicted per query (action chunking when > 1).")
+    execute: int | None = setting(None, "Actions executed per query (receding horizon).", resume=False)
+    ensemble: bool | None = setting(None, "Temporal ensembling of overlapping chunks (ACT).", resume=False)
+    candidates: int | None = setting(None, "Chunks a sampling policy draws per query at execution, the one most coherent "
+                                           "with the chunk before kept (1 = off; demo.policies.actor).", resume=False)
     # ---- the same for every policy
-    ensemble_decay: float = 0.01  # ensembling weight exp(-m i) of the i-th newest prediction's age (ACT: m = 0.01)
-    min_lr_ratio: float = 0.01  # cosine decays to this fraction of lr
-    grad_clip: float = 10.0  # max gradient norm; 0 = off
-    binary_gripper: bool = False  # execute the action's "gripper" entry as open/closed (>= 0.5: 1), see ExecConfig.binary
-    obs_keys: tuple[str, ...] = ()  # default: low-dim obs.* keys except velocities (demo.policies.observation); ("all",) = all
-    obs_noise: float = 0.0  # std of Gaussian noise added to normalised observations (augmentation)
-    relative_actions: bool = True  # predict joint targets relative to the current joint positions (demo.policies.relative)
-    train_mask: str | None = None  # train on this store mask's episodes only (e.g. a curated subset)
-    val_mask: str | None = None  # validation episodes = this mask's episodes
-    val_fraction: float = 0.1  # otherwise this fraction of episodes, drawn with the seed
-    include_failures: bool = False  # also train on episodes whose success is False
-    log_every: int = 100
-    val_every: int = 500
-    eval_every: int = 0  # rollout evaluation every N steps; 0 = only if eval_final
-    eval_episodes: int = 10
-    eval_final: bool = False  # evaluate once more at the end
-    robot: str | None = None  # robot config TOML, where the store's recorded robot files cannot be found (--robot)
-    device: str = "auto"  # auto (CUDA, else MPS, else CPU) | cpu | cuda | mps (demo.policies.device)
-    threads: int = 1  # torch threads (small networks gain little from more; idle threads busy-wait on a shared machine); 0 = torch's default
+    ensemble_decay: float = setting(0.01, "Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01).", resume=False)
+    min_lr_ratio: float = setting(0.01, "The cosine schedule decays to this fraction of --lr.")
+    grad_clip: float = setting(10.0, "Max gradient norm; 0 = off.", resume=False)
+    binary_gripper: bool = setting(False, "Execute the action's gripper entry as open/closed (>= 0.5: closed).",
+                                   resume=False)
+    # default: low-dim obs.* keys except velocities (demo.policies.observation); ("all",) = all; set by --obs-keys
+    obs_keys: tuple[str, ...] = ()
+    obs_noise: float = setting(0.0, "Std of Gaussian noise on normalised observations during training.")
+    # predict joint targets relative to the current joint positions (demo.policies.relative); --absolute-actions: False
+    relative_actions: bool = True
+    train_mask: str | None = setting(None, "Train on this store mask's episodes only (e.g. a curated subset).",
+                                     metavar="NAME", unset="every episode")
+    val_mask: str | None = setting(None, "Validation episodes = this store mask's episodes.", metavar="NAME",
+                                   unset="--val-fraction")
+    val_fraction: float = setting(0.1, "Otherwise: this fraction of episodes, drawn with the seed.")
+    include_failures: bool = setting(False, "Also train on episodes that did not succeed.")
+    log_every: int = setting(100, "Steps between logged training losses.", resume=False)
+    val_every: int = setting(500, "Steps between validation losses.", resume=False)
+    # ---- monitoring rollouts (demo train: --eval-every, --eval-episodes; 0 episodes = none)
+    eval_every: int = setting(0, resume=False)  # rollout evaluation every N steps; 0 = only if eval_final
+    eval_episodes: int = setting(10, resume=False)
+    eval_final: bool = setting(False, resume=False)  # evaluate once more at the end
+    # ---- where it runs (set by --robot, --device: options shared with other commands)
+    robot: str | None = setting(None, resume=False)  # robot config TOML, where the store's recorded robot files cannot be found
+    device: str = setting("auto", resume=False)  # auto (CUDA, else MPS, else CPU) | cpu | cuda | mps (demo.policies.device)
+    # small networks gain little from more threads, and idle ones busy-wait on a shared machine
+    threads: int = setting(1, "Torch threads (0 = torch's default).", resume=False)
 
     @property
     def stores(self) -> tuple[str, ...]:
@@ -242,3 +270,8 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     if "execute" not in given:  # a shorter --chunk than the policy's default shortens what is executed too
         values["execute"] = min(values["execute"], values["chunk"])
     return TrainConfig(**values)
+
+
+# What --resume may not change: the data (checked by path), the policy and everything that shapes its training.
+RESUME_KEYS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(TrainConfig)
+                                     if f.metadata.get("resume", True) and f.name not in ("data", "out"))

@@ -1,6 +1,7 @@
-"""A training run: everything around the optimisation that every algorithm shares.
+"""An imitation training run: everything around the optimisation that every imitation algorithm shares.
 
-:class:`TrainingRun` owns a run's lifecycle, so that an algorithm file holds only what is its own:
+:class:`TrainingRun` is a :class:`demo.training.run.Run` (the run directory's lifecycle, shared with
+RL) over a learner and its training data, so that an algorithm file holds only what is its own:
 
 1. **seeding and threads**: ``torch.manual_seed(seed)``, the batch RNG, ``torch.set_num_threads``;
 2. **the run directory** (:mod:`demo.policies.checkpoint`): refused if it holds something else,
@@ -9,7 +10,7 @@
    (a union of stores: every store and every robot, each robot's files kept in the run);
 4. **the loop** (:meth:`TrainingRun.fit`): batches of training windows, one optimiser step each
    (:func:`demo.training.optim.train_step`), mean training loss every ``log_every`` steps, validation
-   loss every ``val_every``, rollout success every ``eval_every`` (:class:`Monitor`: episodes of
+   loss every ``val_every``, rollout success every ``eval_every`` (:class:`demo.training.run.Monitor`: episodes of
    the store's task on seeds disjoint from the data and from ``demo eval``);
 5. **checkpoints**: the policy (evaluation weights) and ``train_state.pt`` (tensors only) at every
    evaluation, at the end, and on Ctrl-C, so that ``resume`` continues bit-exactly;
@@ -30,35 +31,32 @@ Use (behaviour cloning, :mod:`demo.imitation.bc`)::
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 import json
 import math
-import shutil
-import time
-from collections.abc import Sequence
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np
 import torch
 
 from demo.errors import DemoError
-from demo.progress import Progress, Tick, or_silent
-from demo.store import ActionSpec, EpisodeStore, StoreMeta
-from demo.store.location import absolute
 from demo.policies import checkpoint as ckpt
-from demo.training import distributed
 from demo.policies.actor import ExecConfig
-from demo.training.config import TrainConfig
-from demo.training.data import TrainingData, chunk_action_limits
 from demo.policies.device import resolve_device
-from demo.training.optim import Learner, make_learner, train_step, validation_loss
+from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.policy import build_policy, policy_config
 from demo.policies.visuomotor import encoder_config
-
-# What --resume may not change: the data, the policy and everything that shapes its training.
-RESUME_KEYS = ("algo", "policy", "seed", "batch_size", "lr", "n_obs", "chunk", "obs_keys", "train_mask", "val_mask",
-               "val_fraction", "include_failures", "ema", "weight_decay", "warmup_steps", "min_lr_ratio",
-               "relative_actions", "obs_noise", "encoder")
+from demo.progress import Progress
+from demo.store import ActionSpec, EpisodeStore, StoreMeta
+from demo.store.location import absolute
+from demo.training import distributed
+from demo.training.config import RESUME_KEYS, TrainConfig
+from demo.training.data import TrainingData, chunk_action_limits
+from demo.training.optim import Learner, make_learner, train_step, validation_loss
+from demo.training.plots import plot_training
+from demo.training.run import Run
 
 
 def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
@@ -67,31 +65,8 @@ def execution_config(config: TrainConfig, action: ActionSpec) -> ExecConfig:
     return ExecConfig(config.execute, config.ensemble_decay if config.ensemble else None, binary, config.candidates)
 
 
-class Monitor:
-    """Periodic rollout evaluation on the data's task (seeds disjoint from the data and from demo eval)."""
-
-    def __init__(self, episodes: int, seed: int):
-        self.episodes, self.seed = episodes, seed
-        self.env: Any = None
-
-    def __call__(self, bundle: ckpt.PolicyBundle) -> dict[str, Any]:
-        from demo.seeds import MONITOR_OFFSET, eval_seeds
-        from demo.evaluation.evaluate import make_eval_env, resolve_target, run_episodes_inline, summarize
-
-        if self.env is None:
-            task, options, robot = resolve_target(bundle, None, None, None)
-            self.env = make_eval_env(bundle, task, options, robot)
-        outcomes = run_episodes_inline(bundle, self.env, eval_seeds(self.seed, self.episodes, MONITOR_OFFSET))
-        return summarize(outcomes)
-
-    def close(self) -> None:
-        if self.env is not None:
-            self.env.close()
-            self.env = None
-
-
-class TrainingRun:
-    """One run directory from seeding to summary; see the module docstring for its stages."""
+class TrainingRun(Run):
+    """One imitation run directory from seeding to summary; see the module docstring for its stages."""
 
     def __init__(self, config: TrainConfig, *, progress: Progress | None = None, resume: bool = False,
                  overwrite: bool = False, command: str | None = None, total_steps: int | None = None,
@@ -103,68 +78,21 @@ class TrainingRun:
         except (TypeError, ValueError) as exc:
             raise DemoError("--encoder", str(exc)) from None
         # Under torchrun: this rank's group and device (demo.training.distributed); None in one process.
-        self.group, self.device = distributed.init_from_env(resolve_device(config.device))
+        group, self.device = distributed.init_from_env(resolve_device(config.device))
+        monitored = config.eval_every or config.eval_final
+        super().__init__(config.out, seed=config.seed, threads=config.threads, stage=f"train {name or config.algo}",
+                         title=title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}",
+                         total_steps=total_steps or config.steps, monitor_episodes=config.eval_episodes if monitored else 0,
+                         progress=progress, resume=resume, overwrite=overwrite, command=command, group=group)
         self.config = config
-        self.out = Path(config.out)
-        self.resume, self.overwrite, self.command = resume, overwrite, command
-        self.progress = or_silent(progress if self.is_main else None)  # rank 0 reports for all
-        self.total_steps = total_steps or config.steps
-        self.stage = f"train {name or config.algo}"  # the progress bar's label
-        self.title = title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}"
-        if config.threads > 0:
-            torch.set_num_threads(config.threads)
-        torch.manual_seed(config.seed)
         self.rng = np.random.default_rng([config.seed, 0xB0C])
-        self.metrics: dict[str, Any] = {"train_loss": [], "val_loss": [], "eval": []}
-        monitored = (config.eval_every or config.eval_final) and self.is_main
-        self.monitor = Monitor(config.eval_episodes, config.seed) if monitored else None
+        self.metrics = {"train_loss": [], "val_loss": [], "eval": []}
         self.learner: Learner | None = None
         self.data: TrainingData | None = None
-        self.record: dict[str, Any] = {}
         self.execution = ExecConfig()
         self.action: ActionSpec | None = None
-        self._fields = {"loss": "-", "val": "-", "success": "-", "info": ""}
-        self._started = time.perf_counter()
-        self._opened = False
-        self._saved: dict[str, Any] | None = None  # the train state a resumed run continues from, read once
-
-    @property
-    def is_main(self) -> bool:
-        """Whether this process writes the run directory and reports (always, unless data-parallel rank > 0)."""
-        return self.group is None or self.group.is_main
 
     # ---------------------------------------------------------------------------- 1-3. set-up
-    def __enter__(self) -> "TrainingRun":
-        return self
-
-    def __exit__(self, kind: type | None, *exc: object) -> None:
-        try:
-            if kind is KeyboardInterrupt and self.learner is not None:
-                self.checkpoint()
-        finally:
-            if self.monitor is not None:
-                self.monitor.close()
-            distributed.shutdown(self.group)
-
-    def open_directory(self) -> None:
-        """Create the run directory (once); with ``resume`` it must hold a train state, with
-        ``overwrite`` an older run is replaced (never a directory that is not a run)."""
-        out = self.out
-        if self._opened:
-            return
-        self._opened = True
-        if self.resume:
-            check_run_directory(out, resume=True, overwrite=False)
-            self._saved = ckpt.load_train_state(out)  # one that cannot be resumed from is refused before any write
-            return
-        stale = check_run_directory(out, resume=False, overwrite=self.overwrite)
-        distributed.barrier(self.group)  # every rank has looked at the directory before rank 0 changes it
-        if not self.is_main:
-            return
-        if stale:
-            shutil.rmtree(out)
-        out.mkdir(parents=True, exist_ok=True)
-
     def new_learner(self, data: TrainingData, step: int = 0, phase_steps: int | None = None, seed: int | None = None) -> Learner:
         """A freshly initialised policy for ``data`` and its optimiser (``seed``: re-seed torch first)."""
         if seed is not None:
@@ -206,13 +134,13 @@ class TrainingRun:
             check_resumable(self.out, previous, self.record)
             self.record["created"] = previous.get("created", self.record["created"])
             self.record["resumed"] = [*previous.get("resumed", []),
-                                      {"at_step": int(self._saved["step"]), "command": self.command, "time": ckpt.now()}]
+                                      {"at_step": int(self.resumed_state()["step"]), "command": self.command, "time": ckpt.now()}]
         if not self.is_main:
             return
         # The run carries its robots (config and files) so that it evaluates wherever it is moved.
         for i, robot in enumerate(robots):
             ckpt.save_robot(ckpt.robot_home(self.out, i), robot, stores[robot_of.index(i)].path)
-        ckpt.write_run(self.out, self.record)
+        self.write_record()
 
     def attach(self, learner: Learner, data: TrainingData) -> None:
         """Make ``learner`` (trained on ``data``) the one checkpointed, evaluated and reported."""
@@ -220,11 +148,11 @@ class TrainingRun:
 
     def saved_extra(self) -> dict[str, Any]:
         """The algorithm's own state saved with the checkpoint a resumed run continues (e.g. DAgger's round)."""
-        return json.loads(self._resumed_state().get("extra", "{}"))
+        return json.loads(self.resumed_state().get("extra", "{}"))
 
     def restore(self, learner: Learner) -> dict[str, Any]:
         """Load the last checkpoint into ``learner``, the batch RNG and the metrics; returns its extra."""
-        state = self._resumed_state()
+        state = self.resumed_state()
         try:
             learner.policy.load_state_dict(state["policy"])
             if learner.ema is not None:
@@ -239,11 +167,6 @@ class TrainingRun:
         except (KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise DemoError(self.out, f"train state does not match this run ({str(exc).splitlines()[0][:160]})") from None
         return json.loads(state.get("extra", "{}"))
-
-    def _resumed_state(self) -> dict[str, Any]:
-        if self._saved is None:
-            raise RuntimeError("no train state to resume from: open the directory of a run with resume=True first")
-        return self._saved
 
     # ---------------------------------------------------------------------------- 4. the loop
     def fit(self, until: int) -> None:
@@ -289,16 +212,6 @@ class TrainingRun:
         self.rng = np.random.default_rng([self.config.seed, 0xB0C, rank, learner.step])
         torch.manual_seed(int(np.random.SeedSequence([self.config.seed, 0x7012C, rank, learner.step]).generate_state(1)[0]))
 
-    def evaluate(self) -> dict[str, Any] | None:
-        """Roll the attached learner out with the monitor (None without one); logged in ``metrics``."""
-        if self.monitor is None:
-            return None
-        result = self.monitor(self.bundle())
-        entry = {"step": self._attached().step, **{k: result[k] for k in ("success_rate", "ci95", "episodes", "mean_length")}}
-        self.metrics["eval"].append(entry)
-        self.tick(success=f"{result['successes']}/{result['episodes']}")
-        return entry
-
     def bundle(self) -> ckpt.PolicyBundle:
         """The attached learner as it is now (evaluation weights), runnable like a saved policy."""
         learner, data = self._attached(), self.data
@@ -306,23 +219,26 @@ class TrainingRun:
                                  self.action, self.execution, self.record, self.out, data.relative)
 
     def tick(self, done: int | None = None, message: str | None = None, **fields: Any) -> None:
-        """Report progress: the learner's step (or ``done``), updated fields, an optional message line."""
-        for k, v in fields.items():
-            self._fields[k] = f"{v:.4g}" if isinstance(v, float) else str(v)
+        """Report progress at the learner's step (or ``done``)."""
         if done is None and self.learner is not None:
             done = self.learner.step
-        self.progress(Tick(self.stage, done, self.total_steps, dict(self._fields), message))
+        super().tick(done, message, **fields)
 
     # ---------------------------------------------------------------------------- 5-6. checkpoints, summary
-    def checkpoint(self, extra: dict[str, Any] | None = None) -> None:
-        """Save the policy, the train state (with the algorithm's ``extra``), metrics and curves."""
-        from demo.training.plots import plot_training
+    @property
+    def step(self) -> int:
+        return self._attached().step
 
-        if not self.is_main:
-            return
+    def can_checkpoint(self) -> bool:
+        return self.learner is not None
+
+    def policy_weights(self) -> tuple[dict[str, torch.Tensor], MinMaxNormalizer, MinMaxNormalizer]:
         learner, data = self._attached(), self.data
-        ckpt.save_policy(self.out, learner.eval_weights(), data.obs_norm, data.action_norm)
-        ckpt.save_train_state(self.out, {
+        return learner.eval_weights(), data.obs_norm, data.action_norm
+
+    def train_state(self, extra: dict[str, Any] | None) -> dict[str, Any]:
+        learner = self._attached()
+        return {
             "step": learner.step,
             "phase_start": learner.phase_start,
             "phase_steps": learner.phase_steps,
@@ -333,28 +249,25 @@ class TrainingRun:
             "torch_rng": torch.get_rng_state(),
             "metrics": json.dumps(self.metrics),
             "extra": json.dumps(extra or {}),
-        })
-        ckpt.write_json(self.out / ckpt.METRICS_FILE, self.metrics)
-        plot_training(self.metrics, self.out / ckpt.CURVES_FILE, title=self.title)
+        }
 
-    def finish(self, extra: dict[str, Any] | None = None, **final: Any) -> dict[str, Any]:
-        """Final metrics, a last checkpoint (with ``extra``) and the run's summary (``final`` added)."""
+    def plot(self, path: Path) -> None:
+        plot_training(self.metrics, path, title=self.title)
+
+    def final_metrics(self) -> dict[str, Any]:
         learner, m = self._attached(), self.metrics
-        m["final"] = {
+        return {
             "step": learner.step,
             "train_loss": m["train_loss"][-1][1] if m["train_loss"] else None,
             "val_loss": m["val_loss"][-1][1] if m["val_loss"] else None,
             "success_rate": m["eval"][-1]["success_rate"] if m["eval"] else None,
-            "seconds": time.perf_counter() - self._started,
+            "seconds": self.seconds,
             "expert_labels": self.record["data"]["expert_labels"],
-            **final,
         }
-        if self.is_main:
-            ckpt.write_run(self.out, self.record)
-        self.checkpoint(extra)
-        distributed.barrier(self.group)  # every rank returns once the run directory is complete
+
+    def summary(self) -> dict[str, Any]:
         data = self.record["data"]
-        return {"out": str(self.out), "algo": self.record["algo"], **m["final"],
+        return {"out": str(self.out), "algo": self.record["algo"], **self.metrics["final"],
                 "train_episodes": len(data["train_episodes"]), "val_episodes": len(data["val_episodes"]),
                 "train_frames": data["train_frames"]}
 
@@ -362,22 +275,6 @@ class TrainingRun:
         if self.learner is None or self.data is None:
             raise RuntimeError("no learner attached: call TrainingRun.begin first")
         return self.learner
-
-
-def check_run_directory(out: Path, resume: bool, overwrite: bool) -> bool:
-    """Refuse (DemoError) a run directory this run may not use; True when it holds an older run that
-    ``overwrite`` replaces. Read-only: callers (and a launcher, before its processes start) decide."""
-    if resume:
-        if not (out / ckpt.STATE_FILE).is_file():
-            raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
-        return False
-    stale = out.exists() and any(out.iterdir())
-    if stale:
-        if not overwrite:
-            raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
-        if not (out / ckpt.RUN_FILE).is_file():
-            raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
-    return stale
 
 
 def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner: Learner, execution: ExecConfig,

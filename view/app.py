@@ -22,16 +22,22 @@ Library use (tests, notebooks)::
 
 from __future__ import annotations
 
+import contextlib
+import io
 import threading
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from demo.errors import DemoError
 from demo.interop.common import first_line, is_image
+from demo.sim import TASK_NAMES, make_env
+from demo.sim.robot_record import resolve_robot
 from demo.store import EpisodeStore, StoreMeta
 from demo.view.flags import EpisodeFlags
+from demo.view.scene import MujocoScene, state_mismatch
 
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
            "#bcbd22", "#17becf")
@@ -48,8 +54,6 @@ def load_scene_model(
     ``owner`` is what must be closed when done (a ``demo.sim`` env) or None. ``robot``: a robot
     config overriding the store's (a bad one raises DemoError); ``where``: the store directory.
     """
-    import mujoco
-
     if mjcf is not None:
         path = Path(mjcf)
         try:
@@ -61,11 +65,6 @@ def load_scene_model(
     if not name:
         return None, None, "the store's metadata names no task (pass --mjcf to draw a scene)"
     options = task.get("options") if isinstance(task.get("options"), dict) else {}
-    try:
-        from demo.sim import TASK_NAMES, make_env
-        from demo.sim.robot_record import resolve_robot
-    except ImportError:
-        return None, None, "demo.sim is not available (pass --mjcf to draw a scene)"
     if name not in TASK_NAMES:
         return None, None, f"cannot build task {name!r}: not a demo.sim task (pass --mjcf to draw a scene)"
     if robot is not None:
@@ -99,7 +98,7 @@ class Viewer:
         autoplay: bool = True,
         verbose: bool = False,
     ):
-        import viser
+        import viser  # deferred: heavy optional dependency (viser)
 
         self.store = EpisodeStore.open(store_path)
         if self.store.num_episodes == 0:
@@ -151,8 +150,6 @@ class Viewer:
 
     # ------------------------------------------------------------------ building
     def _build_scene(self, model: Any) -> None:
-        from demo.view.scene import MujocoScene, state_mismatch
-
         first = np.asarray(self.store.read_episode(0, ["sim.state"])["sim.state"][0])
         problem = state_mismatch(model, first)
         if problem:
@@ -371,7 +368,4 @@ def serve(
 
 def _quiet(enabled: bool) -> Any:
     """Silence stdout (viser's banner and "Server stopped" lines) when ``enabled``."""
-    import contextlib
-    import io
-
     return contextlib.redirect_stdout(io.StringIO()) if enabled else contextlib.nullcontext()

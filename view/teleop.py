@@ -44,6 +44,7 @@ from demo.collect.scripted import make_env_for
 from demo.errors import DemoError
 from demo.seeds import episode_seed
 from demo.sim.geometry import quat_conj, quat_mul
+from demo.view.scene import MujocoScene
 
 MODES = ("kinesthetic", "vr")
 CAMERA_EYE, CAMERA_LOOK_AT = (1.15, -0.85, 0.7), (0.4, 0.0, 0.15)  # base frame, m
@@ -74,9 +75,7 @@ class TeleopSession:
     """A live teleoperation page and its simulation. ``close()`` stops both (and saves nothing)."""
 
     def __init__(self, config: TeleopConfig, *, run_thread: bool = True):
-        import viser
-
-        from demo.view.scene import MujocoScene
+        import viser  # deferred: heavy optional dependency (viser)
 
         if config.mode not in MODES:
             raise DemoError("--mode", f"unknown mode {config.mode!r} (choose from {', '.join(MODES)})")

@@ -9,13 +9,14 @@ import typer
 
 from demo.cli.bench import bench_app
 from demo.cli.options import RUN, json_option
-from demo.cli.output import report_console, write_json
+from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 from demo.cli.train import parse_policy_opts
 from demo.errors import DemoError
-from demo.experiments.compounding import CompoundingConfig
-from demo.experiments.crossrobot import CrossRobotConfig
-from demo.experiments.policies import POLICIES
+from demo.experiments.compounding import CompoundingConfig, format_table, run as run_compounding
+from demo.experiments.crossrobot import CrossRobotConfig, run as run_crossrobot
+from demo.experiments.multimodal import run as run_modes
+from demo.experiments.policies import POLICIES, PoliciesConfig, format_rows, run as run_policies
 from demo.progress import Tick
 
 _X = CrossRobotConfig()  # the experiment's defaults live in its config dataclass
@@ -36,15 +37,10 @@ def bench_crossrobot(
     workers: int = typer.Option(_X.workers, help="Processes for collection and evaluation."),
 ) -> None:
     """One policy across robots: BC on two arms' ee7 demos vs per-arm and joint-space policies, success on each arm."""
-    from demo.cli.output import report_console, table, write_json
-    from demo.cli.progress import bars
-    from demo.experiments.crossrobot import run
-    from demo.progress import Tick
-
     config = CrossRobotConfig(out=out, robots=tuple(robot) or _X.robots, demos=demos, episodes=episodes, seed=seed,
                               steps=steps, workers=workers)
     with bars() as progress:
-        r = run(config, log=lambda text: progress(Tick("bench crossrobot", message=text)))
+        r = run_crossrobot(config, log=lambda text: progress(Tick("bench crossrobot", message=text)))
     rows = [[row["policy"], row["robot"] + ("" if row["trained_on_robot"] else " (new to it)"),
              f"{row['successes']}/{row['episodes']}", f"{row['ci95'][0]:.0%}-{row['ci95'][1]:.0%}",
              ", ".join(f"{k} {v}" for k, v in sorted(row["failures"].items())) or "-"] for row in r["rows"]]
@@ -87,16 +83,12 @@ def bench_policies(
     threads: int = typer.Option(1, help="Torch threads of each training."),
 ) -> None:
     """Every policy class on the same data and seeds: success, both sides (avoid), training time, latency; JSON + PNG."""
-    from demo.cli.output import report_console, table, write_json
-    from demo.cli.progress import bars
-    from demo.experiments.policies import PoliciesConfig, format_rows, run
-
     config = PoliciesConfig(out=out, task=task, data=data, episodes_demo=episodes_demo, eval_episodes=eval_episodes, seed=seed,
                             policies=tuple(p.strip() for p in policies.split(",") if p.strip()), steps=steps,
                             distil_steps=distil_steps, starts=starts, samples=samples, latency_seconds=latency_seconds,
                             workers=workers, threads=threads, png=png)
     with bars() as progress:
-        r = run(config, progress=progress)
+        r = run_policies(config, progress=progress)
     report_console(json_out).print(table(f"bench policies ({task}, seed {seed}) -> {r['png']}",
                                          ["policy", "success", "95% CI", "both sides", "training s (+teacher)", "ms/query"],
                                          format_rows(r)))
@@ -124,9 +116,7 @@ def bench_peer_gail(
 ) -> None:
     """The imitation library's GAIL (stable-baselines3 PPO) on demo/<Task>-v0: success on demo eval's episodes, steps,
     time. Runs where imitation is installed (its own venv: README)."""
-    from demo.cli.output import kv_table, report_console, write_json
-    from demo.cli.progress import bars
-    from demo.experiments.peer_gail import PeerGailConfig, run, summary_rows
+    from demo.experiments.peer_gail import PeerGailConfig, run, summary_rows  # deferred: torch stays out of demo --help
 
     config = PeerGailConfig(data=data, task=task, demos=demos, steps=steps, seed=seed, eval_episodes=eval_episodes,
                             envs=envs, rollout=rollout, demo_batch_size=demo_batch_size, threads=threads)
@@ -172,8 +162,6 @@ def bench_compounding(
     workers: int = typer.Option(_C.workers, help="Processes for collection, rollouts and evaluation."),
 ) -> None:
     """Compounding errors: success vs horizon for BC, BC + chunking, DART and the DAgger family at equal expert labels."""
-    from demo.experiments.compounding import format_table, run
-
     def ints(flag: str, text: str) -> tuple[int, ...]:
         try:
             return tuple(int(x) for x in text.split(","))
@@ -191,7 +179,7 @@ def bench_compounding(
                                workers=workers)
     config.check()
     with bars() as progress:
-        result = run(config, log=lambda text: progress(Tick("bench compounding", message=text)))
+        result = run_compounding(config, log=lambda text: progress(Tick("bench compounding", message=text)))
     report_console(json_out).print(format_table(result), highlight=False, markup=False)
     write_json(result, json_out)
 
@@ -220,9 +208,6 @@ def bench_multimodal(
     json_out: str = json_option(default="-"),
 ) -> None:
     """avoid: EE paths of two policies from the same start states, which side they pass, PNG + JSON."""
-    from demo.cli.output import report_console, table, write_json
-    from demo.experiments.multimodal import run as run_modes
-
     r = run_modes(diffusion, reference, starts=starts, samples=samples, seed=seed, png=png, execute=execute,
                   reference_execute=reference_execute)
     rows = []

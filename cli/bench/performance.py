@@ -7,11 +7,20 @@ from pathlib import Path
 
 import typer
 
-from demo.bench.faults import FaultsConfig
+from demo.bench.collect import run as run_collect, run_executors
+from demo.bench.convert import run_bench as run_convert
+from demo.bench.curate import run as run_curate
+from demo.bench.faults import FaultsConfig, run as run_faults
+from demo.bench.load import run as run_load
+from demo.bench.render import DEFAULT_CAMERAS, run as run_render
+from demo.bench.retarget import run as run_retarget
 from demo.cli.bench import bench_app
 from demo.cli.options import RUN, address_option, device_option, executor_option, json_option, robot_option
 from demo.cli.output import kv_table, report_console, table, write_json
+from demo.cli.progress import bars
+from demo.collect.retarget import IK_BACKENDS
 from demo.errors import DemoError
+from demo.executor import ExecutorConfig
 
 _F = FaultsConfig()  # the benchmark's defaults live in its config dataclass
 
@@ -24,10 +33,7 @@ def bench_load(
     seed: int = typer.Option(0, help="Seed of the synthetic store and the sampled windows."),
 ) -> None:
     """Window-sampling samples/s (batch 256, n_obs 2, H 16) vs a raw memory copy of the same bytes."""
-    from demo.bench.load import run
-    from demo.cli.output import kv_table, report_console, write_json
-
-    result = run(frames=frames, seconds=seconds, seed=seed)
+    result = run_load(frames=frames, seconds=seconds, seed=seed)
     report_console(json_out).print(
         kv_table(
             "bench load",
@@ -57,10 +63,6 @@ def bench_collect(
 ) -> None:
     """Scripted collection frames/s (1 and 2 workers) vs bare mj_step of the same scene; --executor ray: 2 Ray
     actors vs 2 worker processes."""
-    from demo.bench.collect import run, run_executors
-    from demo.cli.output import kv_table, report_console, write_json
-    from demo.executor import ExecutorConfig
-
     ExecutorConfig(executor, 2, address).check()
     if executor == "ray":
         r = run_executors(task=task, episodes=episodes, seed=seed, rounds=rounds or 2, address=address)
@@ -72,7 +74,7 @@ def bench_collect(
             ("same bytes", r["same_bytes"]),
         ]
     else:
-        r = run(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds or 6)
+        r = run_collect(task=task, episodes=episodes, seconds=seconds, seed=seed, rounds=rounds or 6)
         title, rows = f"bench collect ({task})", [
             ("raw physics control steps/s (reference)", r["reference_physics"]["control_steps_per_s"]),
             ("collection frames/s, 1 worker", r["one_worker"]["frames_per_s"]),
@@ -98,10 +100,7 @@ def bench_render(
                                                "this process."),
 ) -> None:
     """Collection frames/s with cameras vs bare mujoco.Renderer renders (+ physics) of the same scene."""
-    from demo.bench.render import DEFAULT_CAMERAS, run
-    from demo.cli.output import kv_table, report_console, write_json
-
-    r = run(task=task, cameras=camera or DEFAULT_CAMERAS, episodes=episodes, seconds=seconds, seed=seed,
+    r = run_render(task=task, cameras=camera or DEFAULT_CAMERAS, episodes=episodes, seconds=seconds, seed=seed,
             rounds=rounds, workers=workers)
     stored = r["camera_bytes"]["total"]
     report_console(json_out).print(
@@ -134,14 +133,10 @@ def bench_faults(
     seed: int = typer.Option(_F.seed, help="Seed of the random kill times."),
 ) -> None:
     """SIGKILLs, --overwrite races, concurrent creates and a full disk: stores readable, finished episodes lost (must be 0)."""
-    from demo.bench.faults import run
-    from demo.cli.output import report_console, table, write_json
-    from demo.cli.progress import bars
-
     config = FaultsConfig(episodes=episodes, kills=kills, append_kills=append_kills, races=races, creates=creates,
                           max_kill_s=max_kill_s, disk_mib=disk_mib, workers=workers, seed=seed)
     with bars() as progress:
-        r = run(config, progress=progress)
+        r = run_faults(config, progress=progress)
     columns = ["scenario", "trials", "stores readable", "no store, nothing finished", "finished episodes",
                "finished lost", "checks failed"]
     rows = [[s["scenario"], s["trials"], s["stores_readable"], s["no_store_nothing_finished"], s["finished_episodes"],
@@ -161,9 +156,7 @@ def bench_convert(
     seed: int = typer.Option(0, help="Seed of the synthetic trajectories."),
 ) -> None:
     """joint_pos -> ee7 frames/s on one core, vs a bare mj_kinematics loop and a per-frame placo FK loop."""
-    from demo.bench.convert import run_bench
-
-    result = run_bench(frames=frames, robot=str(robot) if robot else None, placo_frames=placo_frames, seed=seed)
+    result = run_convert(frames=frames, robot=str(robot) if robot else None, placo_frames=placo_frames, seed=seed)
     shown = report_console(json_out)
     rows = [(k, f"{v['frames_per_s']:,.0f}" if v.get("frames_per_s") else v.get("error", "-"), v.get("note", ""))
             for k, v in result["results"].items()]
@@ -182,9 +175,7 @@ def bench_curate(
     seed: int = typer.Option(0, help="Seed of the synthetic store."),
 ) -> None:
     """Curation frames/s with every signal on, vs reading + normalising the same arrays."""
-    from demo.bench.curate import run
-
-    r = run(frames=frames, episode_s=episode_s, seed=seed)
+    r = run_curate(frames=frames, episode_s=episode_s, seed=seed)
     report_console(json_out).print(
         kv_table(
             "bench curate",
@@ -210,14 +201,10 @@ def bench_retarget(
     seed: int = typer.Option(0, help="Seed of the initial state and the hand path."),
 ) -> None:
     """VR retargeting poses/s on one core vs the bare IK solve, mink and placo."""
-    from demo.bench.retarget import run
-    from demo.collect.retarget import IK_BACKENDS
-    from demo.errors import DemoError
-
     for name in ik:
         if name not in IK_BACKENDS:
             raise DemoError("--ik", f"unknown IK backend {name!r} (choose from {', '.join(IK_BACKENDS)})")
-    r = run(task=task, seconds=seconds, backends=tuple(ik), seed=seed)
+    r = run_retarget(task=task, seconds=seconds, backends=tuple(ik), seed=seed)
     rows = []
     for name, b in r["backends"].items():
         rows += [
@@ -253,7 +240,7 @@ def bench_train(
 ) -> None:
     """Training samples/s with the real data pipeline vs the same model's bare forward/backward (state, or
     --images); with --nproc N, data-parallel training vs one process."""
-    from demo.bench.train import run, run_images
+    from demo.bench.train import run, run_images  # deferred: torch stays out of demo --help
 
     if nproc > 1:
         _bench_train_parallel(json_out, nproc, data, frames, batch_size, steps, rounds, seed, device)
@@ -284,7 +271,7 @@ def bench_train(
 
 def _bench_train_parallel(json_out: str, nproc: int, data: Path | None, frames: int | None, batch_size: int | None,
                           steps: int, rounds: int, seed: int, device: str) -> None:
-    from demo.bench.train_parallel import run_parallel
+    from demo.bench.train_parallel import run_parallel  # deferred: torch stays out of demo --help
 
     given = dict(data=data, frames=frames, batch_size=batch_size, steps=steps, rounds=rounds, seed=seed,
                  device=device)
@@ -318,16 +305,14 @@ def bench_infer(
     device: str = device_option(),
 ) -> None:
     """Milliseconds per action chunk (batch 1): DDIM fast path vs DDPM-100 eager (same network); 1 step vs the teacher's DDIM."""
-    from demo.bench.infer import run as run_bench
-    from demo.cli.output import report_console, table, write_json
-    from demo.errors import DemoError
+    from demo.bench.infer import run as run_infer  # deferred: torch stays out of demo --help
 
     try:
         chans = tuple(int(c) for c in channels.split(",")) if channels else None
     except ValueError:
         raise DemoError("--channels", f"{channels!r} is not a comma-separated list of integers") from None
     try:
-        r = run_bench(run=run, denoiser="unet" if (large or chans) else denoiser, large=large, channels=chans,
+        r = run_infer(run=run, denoiser="unet" if (large or chans) else denoiser, large=large, channels=chans,
                       steps=inference_steps, threads=threads, seconds=seconds,
                       episodes=(100 if run else 0) if episodes is None else episodes, seed=seed,
                       execute=execute, device=device)

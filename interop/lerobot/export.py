@@ -62,8 +62,8 @@ from demo.store.location import store_path as locate_store
 
 
 def plan_columns(meta: StoreMeta, images: str = "video") -> list[Column]:
-    """Map every store feature to a LeRobot feature (see the module docstring); cameras become
-    videos with ``images="video"`` where frames can be encoded, else embedded PNG."""
+    """Map every store feature to a LeRobot feature (the table in :mod:`demo.interop.lerobot.layout`);
+    cameras become videos with ``images="video"`` where frames can be encoded, else embedded PNG."""
     if images not in IMAGE_MODES:
         raise ValueError(f"images must be one of {IMAGE_MODES}, got {images!r}")
     taken = {STATE, DONE, *FRAME_COLUMNS}
@@ -158,7 +158,7 @@ def _vector(values: np.ndarray) -> pa.Array:
 
 
 def _png(image: np.ndarray) -> bytes:
-    from PIL import Image
+    from PIL import Image  # loaded only when images are embedded
 
     buf = io.BytesIO()
     img = Image.fromarray(image[:, :, 0] if image.shape[2] == 1 else image)

@@ -43,8 +43,8 @@ from demo.interop.video import unencodable
 from demo.progress import Progress
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 
+# The Column.kind values a recorded key map may hold (see demo.interop.lerobot.layout.Column).
 COLUMN_KINDS = ("state", "image", "video", "array")
-
 
 
 def import_lerobot(

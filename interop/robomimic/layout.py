@@ -1,6 +1,7 @@
 """What a robomimic HDF5 file written by demo holds, and the names shared by the export and the import.
 
-File layout written by :func:`~demo.interop.robomimic.export_robomimic` (and read by :func:`~demo.interop.robomimic.import_robomimic`)::
+File layout written by :func:`~demo.interop.robomimic.export_robomimic` (and read by
+:func:`~demo.interop.robomimic.import_robomimic`)::
 
     data                 attrs: total (frames), env_args (JSON), demo_meta (JSON, written by demo)
     data/demo_<i>        attrs: num_samples; episode.<column> for every per-episode column

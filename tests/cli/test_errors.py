@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import typer
 
-from demo.cli.main import app, main
+from demo.cli.main import app
 from demo.cli.options import json_option
 from demo.errors import DemoError
 from demo.interop.sample import make_sample_store
@@ -35,30 +35,22 @@ def _raise_os_error(kind: str, out: Path = typer.Option(..., "--out"), json_out:
     raise _OS_ERRORS[kind](out)
 
 
-def error_line(argv: list[str], capsys: pytest.CaptureFixture[str], code: int = 1) -> str:
-    capsys.readouterr()
-    assert main(argv) == code
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
-    return err.rstrip("\n")
-
-
 @pytest.mark.parametrize("kind,expected", [
     ("enospc", "disk full (no space left on device)"),
     ("erofs", "read-only file system"),
     ("eacces", "permission denied"),
 ])
-def test_os_errors_name_the_file(kind: str, expected: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_os_errors_name_the_file(kind: str, expected: str, tmp_path: Path, one_line_error) -> None:
     out = tmp_path / "x.zarr"
     # Before: `error: OSError: [Errno 28] No space left on device` named no file.
-    assert error_line(["raise-os-error", kind, "--out", str(out)], capsys) == f"error: {out}: {expected}"
+    assert one_line_error(["raise-os-error", kind, "--out", str(out)], rc=1) == f"error: {out}: {expected}"
 
 
-def test_out_that_is_a_regular_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_out_that_is_a_regular_file(tmp_path: Path, one_line_error) -> None:
     notes = tmp_path / "notes.txt"
     notes.write_text("keep me")
     for out in (notes / "pick.zarr", notes):
-        line = error_line(["collect", "--task", "reach", "--episodes", "1", "--out", str(out)], capsys)
+        line = one_line_error(["collect", "--task", "reach", "--episodes", "1", "--out", str(out)], rc=1)
         assert line.startswith(f"error: {notes}: "), line
     assert notes.read_text() == "keep me"
     from demo.errors import os_error
@@ -154,7 +146,7 @@ def _mount_tmpfs(folder: Path, size_kb: int) -> bool:
     return done.returncode == 0
 
 
-def test_disk_full_for_real(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_disk_full_for_real(tmp_path: Path, one_line_error) -> None:
     """A full file system (a small tmpfs): before, the robomimic export crashed (libhdf5 segfaults when
     it cannot flush on close) and other commands named no file."""
     disk = tmp_path / "disk"
@@ -164,7 +156,7 @@ def test_disk_full_for_real(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         store = make_sample_store(tmp_path / "s.zarr", episodes=4)
         (disk / "filler").write_bytes(b"\0" * 200_000)
         out = disk / "x.hdf5"
-        assert error_line(["export", str(store), "--format", "robomimic", "--out", str(out)], capsys) == \
+        assert one_line_error(["export", str(store), "--format", "robomimic", "--out", str(out)], rc=1) == \
             f"error: {out}: disk full (no space left on device)"
         assert sorted(p.name for p in disk.iterdir() if not p.name.endswith(".lock")) == ["filler"]
     finally:

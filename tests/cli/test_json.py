@@ -88,16 +88,18 @@ CASES: dict[str, Case] = {
 }
 SKIPS = {
     "bench multimodal": "needs a diffusion and a BC run trained on avoid; "
-                        "test_train_diffusion_bench.py runs it end to end with --json - and parses stdout",
+                        "tests/bench/test_diffusion_bench.py runs it end to end with --json - and parses stdout",
     "bench compounding": "collects, trains and evaluates BC, chunked BC, DART and the DAgger family per horizon (~1 min in "
                          "miniature); "
-                         "test_bench_compounding.py runs it end to end with --json - and parses stdout",
+                         "tests/experiments/test_compounding.py runs it end to end with --json - and parses stdout",
     "bench crossrobot": "collects on two arms, trains five policies and evaluates eight pairs (~14 s in miniature); "
-                        "test_bench_crossrobot.py runs it end to end with --json - and parses stdout",
+                        "tests/experiments/test_crossrobot.py runs it end to end with --json - and parses stdout",
     "bench policies": "collects, trains and evaluates one policy per class (and a distillation); "
-                      "test_bench_policies.py runs it in miniature with --json FILE and reads it",
-    "irl train": "trains a PPO inner loop per algorithm; test_irl.py runs each algorithm in miniature with --json FILE",
-    "bench peer-gail": "needs the imitation library, installed in its own venv only (README); test_peer_gail.py runs it "
+                      "tests/experiments/test_policies.py runs it in miniature with --json FILE and reads it",
+    "irl train": "trains a PPO inner loop per algorithm; "
+                 "tests/rl/test_irl.py runs each algorithm in miniature with --json FILE",
+    "bench peer-gail": "needs the imitation library, installed in its own venv only (README); "
+                       "tests/experiments/test_peer_gail.py runs it "
                        "in miniature there with --json FILE",
 }
 

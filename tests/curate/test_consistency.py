@@ -12,15 +12,21 @@ from demo.curate.signals import consistency as cons
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 
 
-def test_contradicting_episode_is_the_least_consistent(tmp_path: Path) -> None:
+def scores_with_one_flawed(tmp_path: Path, flaws: synthetic.Flaws) -> dict[str, np.ndarray]:
+    """Consistency scores of 30 clean episodes (six goals) and, last (index 30), one with ``flaws`` that
+    starts like the others and has the first goal."""
     rng = np.random.default_rng(0)
     goals = rng.uniform(-0.5, 0.5, (6, 3))
     episodes = [(synthetic.episode(rng, goal=goals[i % 6]), {}) for i in range(30)]
-    # From the same start, for the same goal as five others, it heads the other way.
-    episodes.append((synthetic.episode(rng, synthetic.Flaws(mirror=True), goal=goals[0]), {}))
+    episodes.append((synthetic.episode(rng, flaws, goal=goals[0]), {}))
     path = synthetic.write_store(tmp_path / "s.zarr", episodes)
     with EpisodeStore.open(path) as store:
-        s = cons.compute(load_frames(store))
+        return cons.compute(load_frames(store))
+
+
+def test_contradicting_episode_is_the_least_consistent(tmp_path: Path) -> None:
+    # From the same start, for the same goal as five others, it heads the other way.
+    s = scores_with_one_flawed(tmp_path, synthetic.Flaws(mirror=True))
     c, d = s["consistency"], s["disagreement"]
     assert np.isfinite(c).all()
     assert np.argmin(c) == 30 and np.argmax(d) == 30
@@ -33,13 +39,7 @@ def test_contradicting_episode_is_the_least_consistent(tmp_path: Path) -> None:
 def test_reversed_episode_is_novel(tmp_path: Path) -> None:
     # Driving a path backwards visits the others' positions with the opposite velocity: states no one
     # else demonstrated (so no label conflicts with it), which novelty reports.
-    rng = np.random.default_rng(0)
-    goals = rng.uniform(-0.5, 0.5, (6, 3))
-    episodes = [(synthetic.episode(rng, goal=goals[i % 6]), {}) for i in range(30)]
-    episodes.append((synthetic.episode(rng, synthetic.Flaws(reverse=True), goal=goals[0]), {}))
-    path = synthetic.write_store(tmp_path / "s.zarr", episodes)
-    with EpisodeStore.open(path) as store:
-        s = cons.compute(load_frames(store))
+    s = scores_with_one_flawed(tmp_path, synthetic.Flaws(reverse=True))
     assert np.argmax(s["novelty"]) == 30
     assert s["novelty"][30] > 3 * np.median(s["novelty"][:30])
 

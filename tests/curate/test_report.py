@@ -72,21 +72,13 @@ def test_cli_mask_and_json_to_stdout(mixed: Path, tmp_path: Path, capsys: pytest
     assert any(reasons) and all(bool(text) != e["kept"] for text, e in zip(reasons, r["episodes"]))
 
 
-def one_line_error(capsys: pytest.CaptureFixture, argv: list[str], needle: str) -> None:
-    rc = main(argv)
-    err = capsys.readouterr().err.strip()
-    assert rc != 0
-    assert len(err.splitlines()) == 1, err
-    assert needle in err and "Traceback" not in err, err
-
-
-def test_cli_bad_input(mixed: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    one_line_error(capsys, ["curate", str(tmp_path / "nope.zarr")], "no such store")
-    one_line_error(capsys, ["curate", str(mixed), "--max-jerk", "lots"], "--max-jerk: expected a number or 'off'")
-    one_line_error(capsys, ["curate", str(mixed), "--out", str(mixed)], "is the source store")
-    one_line_error(capsys, ["curate", str(mixed), "--min-consistency", "2"], "must be a fraction")
+def test_cli_bad_input(mixed: Path, tmp_path: Path, one_line_error) -> None:
+    one_line_error(["curate", str(tmp_path / "nope.zarr")], "no such store")
+    one_line_error(["curate", str(mixed), "--max-jerk", "lots"], "--max-jerk: expected a number or 'off'")
+    one_line_error(["curate", str(mixed), "--out", str(mixed)], "is the source store")
+    one_line_error(["curate", str(mixed), "--min-consistency", "2"], "must be a fraction")
     (tmp_path / "junk").mkdir()
-    one_line_error(capsys, ["curate", str(tmp_path / "junk")], "not a demo episode store")
+    one_line_error(["curate", str(tmp_path / "junk")], "not a demo episode store")
 
 
 def test_progress_ticks_one_per_step(mixed: Path, tmp_path: Path) -> None:

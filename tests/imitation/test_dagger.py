@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import torch
 
-from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.sim import make_env
 from demo.store import EpisodeStore
@@ -22,10 +21,8 @@ REACH = {"pos_tol": 0.04, "rot_tol": 0.4}
 
 
 @pytest.fixture(scope="module")
-def demos(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("dagger") / "reach.zarr"
-    collect_scripted(CollectConfig(task="reach", episodes=8, seed=0, task_options=REACH), path, workers=0)
-    return path
+def demos(reach_demos) -> Path:
+    return reach_demos(8)  # read-only: DAgger copies its source
 
 
 def dagger(demos: Path, out: Path, **kw) -> dict:

@@ -19,7 +19,6 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from demo.cli.main import main
 from demo.errors import DemoError
 from demo.interop.lerobot import export_lerobot, import_lerobot
 from demo.interop.robomimic import export_robomimic, import_robomimic
@@ -34,15 +33,6 @@ def sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_sample_store(tmp_path_factory.mktemp("untrusted") / "s.zarr", episodes=3, seed=4)
 
 
-def one_line_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    """Run ``demo argv``; it must fail with exactly one ``error: `` line; return it."""
-    capsys.readouterr()
-    assert main(argv) == 1
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
-    return err.strip()
-
-
 # ---------------------------------------------------------------------------------------------- robomimic
 def foreign_h5(path: Path, actions: Callable[[h5py.Group], None]) -> Path:
     """A robomimic file whose data/demo_0/actions is made by ``actions(group)``."""
@@ -54,7 +44,7 @@ def foreign_h5(path: Path, actions: Callable[[h5py.Group], None]) -> Path:
 
 
 @pytest.mark.parametrize("kind", ["external_storage", "external_link", "soft_link_out", "virtual"])
-def test_robomimic_reads_nothing_outside_the_file(kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_robomimic_reads_nothing_outside_the_file(kind: str, tmp_path: Path, one_line_error) -> None:
     secret = tmp_path / "secret.bin"
     secret.write_bytes(SECRET.tobytes())
     with h5py.File(tmp_path / "other.h5", "w") as other:
@@ -80,7 +70,7 @@ def test_robomimic_reads_nothing_outside_the_file(kind: str, tmp_path: Path, cap
     assert err.value.where.startswith(f"{path}: /") and "refusing to read" in err.value.problem
     assert ("/data/demo_0/actions" in err.value.where) or kind == "soft_link_out"
     assert not out.exists()
-    line = one_line_error(["import", str(path), "--out", str(out)], capsys)
+    line = one_line_error(["import", str(path), "--out", str(out)], rc=1)
     assert line.startswith(f"error: {path}: /") and not out.exists()
 
 
@@ -108,7 +98,7 @@ def test_robomimic_sizes_are_bounded_before_reading(sample: Path, tmp_path: Path
         import_robomimic(tmp_path / "d.hdf5", tmp_path / "b.zarr")
 
 
-def test_robomimic_feature_names_become_store_keys(sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_robomimic_feature_names_become_store_keys(sample: Path, tmp_path: Path, one_line_error) -> None:
     # A foreign obs name a store key cannot hold is renamed; demo's own key map is checked, not trusted.
     path = foreign_h5(tmp_path / "in.hdf5", lambda g: g.create_dataset("actions", data=np.ones((16, 2), np.float32)))
     with h5py.File(path, "a") as f:
@@ -121,7 +111,7 @@ def test_robomimic_feature_names_become_store_keys(sample: Path, tmp_path: Path,
         meta["store_meta"]["features"]["obs.a/../b"] = meta["store_meta"]["features"].pop("obs.ee_pos")
         meta["keys"]["obs.a/../b"] = meta["keys"].pop("obs.ee_pos")
         f["data"].attrs["demo_meta"] = json.dumps(meta)
-    line = one_line_error(["import", str(tmp_path / "d.hdf5"), "--out", str(tmp_path / "b.zarr")], capsys)
+    line = one_line_error(["import", str(tmp_path / "d.hdf5"), "--out", str(tmp_path / "b.zarr")], rc=1)
     assert line == (f"error: {tmp_path / 'd.hdf5'}: data: feature key 'obs.a/../b' is not a store key "
                     "(action, obs.NAME, sim.NAME or info.NAME)")
 
@@ -148,12 +138,12 @@ def set_info(root: Path, **changes: object) -> Path:
     "../elsewhere/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",  # the issue's case: it imported that file
     "{root}/elsewhere/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
 ])
-def test_lerobot_data_path_outside_is_refused_alike(template: str, dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_lerobot_data_path_outside_is_refused_alike(template: str, dataset: Path, one_line_error) -> None:
     template = template.replace("{root}", str(dataset.parent))
     info = set_info(dataset, data_path=template)
-    exists = one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], capsys)
+    exists = one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], rc=1)
     set_info(dataset, data_path=template.replace("/elsewhere/", "/nowhere/"))
-    missing = one_line_error(["import", str(dataset), "--out", str(dataset.parent / "b.zarr")], capsys)
+    missing = one_line_error(["import", str(dataset), "--out", str(dataset.parent / "b.zarr")], rc=1)
     assert exists.startswith(f"error: {info}: data_path ") and "leads outside the dataset folder" in exists
     assert exists.replace("/elsewhere/", "/nowhere/") == missing  # nothing tells whether the target exists
     assert not (dataset.parent / "a.zarr").exists()
@@ -170,7 +160,7 @@ def test_lerobot_path_templates_are_data_not_code(template: str, dataset: Path) 
 
 @pytest.mark.parametrize("link", ["meta/info.json", "meta", "data/chunk-000/file-000.parquet", "meta/tasks.parquet",
                                   "meta/episodes/chunk-000/file-000.parquet"])
-def test_lerobot_symlinks_out_are_refused_alike(link: str, dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_lerobot_symlinks_out_are_refused_alike(link: str, dataset: Path, one_line_error) -> None:
     path = dataset / link
     shutil.rmtree(path) if path.is_dir() else path.unlink()
     errors = []
@@ -178,7 +168,7 @@ def test_lerobot_symlinks_out_are_refused_alike(link: str, dataset: Path, capsys
         if path.is_symlink():
             path.unlink()
         path.symlink_to(dataset.parent / target / ("chunk-000/file-000.parquet" if link.endswith(".parquet") else ""))
-        errors.append(one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], capsys))
+        errors.append(one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], rc=1))
     assert errors[0] == errors[1] and "leads outside the dataset folder" in errors[0]
     assert not (dataset.parent / "a.zarr").exists()
 
@@ -201,9 +191,9 @@ def test_lerobot_sizes_are_bounded_before_allocating(column: str, value: int, da
 
 
 @pytest.mark.parametrize("changes", [{"fps": float("nan")}, {"total_frames": 2**70}, {"total_episodes": -1}])
-def test_lerobot_info_numbers_are_checked(changes: dict, dataset: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_lerobot_info_numbers_are_checked(changes: dict, dataset: Path, one_line_error) -> None:
     info = set_info(dataset, **changes)
-    assert one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], capsys).startswith(f"error: {info}: ")
+    assert one_line_error(["import", str(dataset), "--out", str(dataset.parent / "a.zarr")], rc=1).startswith(f"error: {info}: ")
 
 
 def test_lerobot_feature_names_become_store_keys(dataset: Path, tmp_path: Path) -> None:

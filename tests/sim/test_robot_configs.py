@@ -38,14 +38,6 @@ def panda_variant(tmp_path: Path, xml: str, extra: str = "", drop: tuple[str, ..
     return cfg
 
 
-def one_line_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    capsys.readouterr()
-    assert main(argv) != 0
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
-    return err.strip()
-
-
 # ---------------------------------------------------------------- attach isolation, base, home, meshes
 HOSTILE = '<compiler angle="radian" autolimits="true" inertiagrouprange="4 5" inertiafromgeom="true" boundmass="0.5" boundinertia="0.1"/>'
 
@@ -169,7 +161,7 @@ BAD = [
 
 @pytest.mark.parametrize("change,extra,expected", BAD, ids=["missing-gripper", "missing-home", "no-joint", "velocity",
                                                            "gripper-on-arm", "gripper-range"])
-def test_bad_config_is_one_line_naming_the_file_and_fix(tmp_path, capsys, change, extra, expected):
+def test_bad_config_is_one_line_naming_the_file_and_fix(tmp_path, one_line_error, change, extra, expected):
     drop, edits = (), []
     if change.startswith("drop:"):
         drop = (change[5:],)
@@ -187,13 +179,13 @@ def test_bad_config_is_one_line_naming_the_file_and_fix(tmp_path, capsys, change
     with pytest.raises(DemoError) as e:
         load_robot(cfg)
     assert e.value.where == str(cfg.resolve()) and expected in e.value.problem, e.value.problem
-    line = one_line_error(["robot", "check", str(cfg), "--episodes", "1"], capsys)
+    line = one_line_error(["robot", "check", str(cfg), "--episodes", "1"])
     assert line.startswith(f"error: {cfg.resolve()}: ") and expected in line
 
 
-def test_base_pose_out_of_reach_names_base_pos(tmp_path, capsys):
+def test_base_pose_out_of_reach_names_base_pos(tmp_path, one_line_error):
     cfg = panda_variant(tmp_path, PANDA_XML, "base_pos = [-0.9, 0, 0]\n")
-    line = one_line_error(["robot", "check", str(cfg), "--episodes", "1", "--targets", "2"], capsys)
+    line = one_line_error(["robot", "check", str(cfg), "--episodes", "1", "--targets", "2"])
     assert f"{cfg.resolve()}: the arm reaches" in line and "move it with base_pos = [x, y, z]" in line
 
 

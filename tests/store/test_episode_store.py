@@ -113,7 +113,7 @@ WRITER = textwrap.dedent(
     import sys, time, numpy as np
     sys.path.insert(0, {tests!r})
     from test_episode_store import make_meta, random_episode
-    from demo.store import EpisodeStore, episode_store
+    from demo.store import EpisodeStore
     from demo.store import episode_table
     path, pause_at = sys.argv[1], int(sys.argv[2])
     store = EpisodeStore.create(path, make_meta())
@@ -126,7 +126,7 @@ WRITER = textwrap.dedent(
             time.sleep(60)
         count[0] += 1
         real_write(table, p)
-    episode_store.episode_table.write_atomic = slow_commit
+    episode_table.write_atomic = slow_commit  # every commit (demo.store.writing) calls it through the module
     count[0] = 1  # the empty table was already written by create()
     for i in range(1000):
         store.append_episode(random_episode(i), seed=i, source="scripted")
@@ -179,15 +179,6 @@ def test_sigkill_at_random_times(tmp_path: Path) -> None:
             np.testing.assert_array_equal(store.read_episode(i)["action"], random_episode(i)["action"])
 
 
-def one_line_error(capsys: pytest.CaptureFixture, argv: list[str], needle: str) -> None:
-    rc = main(argv)
-    err = capsys.readouterr().err.strip()
-    assert rc != 0
-    assert len(err.splitlines()) == 1, err
-    assert needle in err, err
-    assert "Traceback" not in err
-
-
 def chunk_files(store: Path, key: str) -> list[Path]:
     return sorted(p for p in (store / "data" / key / "c").rglob("*") if p.is_file())
 
@@ -198,54 +189,54 @@ def filled_store(path: Path, n: int = 3) -> None:
             store.append_episode(random_episode(i), seed=i)
 
 
-def test_bad_input_not_a_store(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    one_line_error(capsys, ["info", str(tmp_path / "missing.zarr")], "no such store")
+def test_bad_input_not_a_store(tmp_path: Path, one_line_error) -> None:
+    one_line_error(["info", str(tmp_path / "missing.zarr")], "no such store")
     (tmp_path / "dir").mkdir()
-    one_line_error(capsys, ["info", str(tmp_path / "dir")], "not a demo episode store")
+    one_line_error(["info", str(tmp_path / "dir")], "not a demo episode store")
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "zarr.json").write_text(json.dumps({"zarr_format": 3, "node_type": "group", "attributes": {}}))
-    one_line_error(capsys, ["info", str(tmp_path / "other")], "not a demo episode store")
+    one_line_error(["info", str(tmp_path / "other")], "not a demo episode store")
 
 
-def test_bad_input_wrong_schema_version(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_bad_input_wrong_schema_version(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     meta_file = tmp_path / "s.zarr" / "zarr.json"
     doc = json.loads(meta_file.read_text())
     doc["attributes"]["demo"]["schema_version"] = 99
     meta_file.write_text(json.dumps(doc))
-    one_line_error(capsys, ["info", str(tmp_path / "s.zarr")], "schema version 99 is not supported")
+    one_line_error(["info", str(tmp_path / "s.zarr")], "schema version 99 is not supported")
 
 
-def test_bad_input_corrupted_table(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_bad_input_corrupted_table(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     table = tmp_path / "s.zarr" / "episodes.parquet"
     table.write_bytes(table.read_bytes()[: len(table.read_bytes()) // 2])
-    one_line_error(capsys, ["info", str(tmp_path / "s.zarr")], "episodes.parquet: episode table is corrupted")
+    one_line_error(["info", str(tmp_path / "s.zarr")], "episodes.parquet: episode table is corrupted")
 
 
-def test_bad_input_truncated_array(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_bad_input_truncated_array(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     meta_file = tmp_path / "s.zarr" / "data" / "action" / "zarr.json"
     doc = json.loads(meta_file.read_text())
     doc["shape"][0] = 3
     meta_file.write_text(json.dumps(doc))
-    one_line_error(capsys, ["info", str(tmp_path / "s.zarr")], "data/action: is truncated")
+    one_line_error(["info", str(tmp_path / "s.zarr")], "data/action: is truncated")
 
 
-def test_bad_input_corrupted_chunk(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_bad_input_corrupted_chunk(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     chunk = chunk_files(tmp_path / "s.zarr", "obs.joint_pos")[0]
     chunk.write_bytes(b"garbage" * 10)
-    one_line_error(capsys, ["info", str(tmp_path / "s.zarr"), "--check"], "damaged episode")
+    one_line_error(["info", str(tmp_path / "s.zarr"), "--check"], "damaged episode")
     with pytest.raises(DemoError, match="obs.joint_pos: cannot be read"):
         EpisodeStore.open(tmp_path / "s.zarr").read_episode(0)
 
 
-def test_bad_input_missing_chunk_is_caught_by_checksum(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_bad_input_missing_chunk_is_caught_by_checksum(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     for chunk in chunk_files(tmp_path / "s.zarr", "sim.state"):
         chunk.unlink()
-    one_line_error(capsys, ["info", str(tmp_path / "s.zarr"), "--check"], "does not match its checksum")
+    one_line_error(["info", str(tmp_path / "s.zarr"), "--check"], "does not match its checksum")
 
 
 def test_bad_input_on_append(tmp_path: Path) -> None:

@@ -33,17 +33,6 @@ def digest(path: Path) -> str:
     return hashlib.sha256(json.dumps({k: v.hex() for k, v in tree_bytes(path).items()}).encode()).hexdigest()
 
 
-def one_line_error(capsys: pytest.CaptureFixture, argv: list[str], *needles: str) -> str:
-    """Run ``demo ARGV``: it must fail with one ``error:`` line (the last; progress bars may precede it)."""
-    rc = main(argv)
-    err = capsys.readouterr().err.strip()
-    errors = [line for line in err.splitlines() if line.startswith("error: ")]
-    assert rc != 0 and len(errors) == 1 and err.endswith(errors[0]) and "Traceback" not in err, err
-    for needle in needles:
-        assert needle in errors[0], err
-    return errors[0]
-
-
 def leftovers(folder: Path, name: str) -> list[str]:
     """Staging folders, swapped-out stores and lock files of ``name`` left in ``folder``."""
     return sorted(p.name for p in folder.iterdir() if p.name.startswith(f".{name}."))
@@ -79,7 +68,7 @@ HOLDER = """
 
 
 # ------------------------------------------------------------------------------------------ point 1
-def test_overwrite_of_a_store_being_written_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_overwrite_of_a_store_being_written_is_refused(tmp_path: Path, one_line_error) -> None:
     store = make_sample_store(tmp_path / "s.zarr")
     before = tree_bytes(store)
     holder = spawn(tmp_path, HOLDER, str(store), str(tmp_path / "ready"))
@@ -93,8 +82,8 @@ def test_overwrite_of_a_store_being_written_is_refused(tmp_path: Path, capsys: p
         with pytest.raises(DemoError, match=busy[:30]):
             with staged_output(store, overwrite=True, looks_like=lambda p: True, kind="demo store", is_dir=True):
                 pass  # import's path
-        one_line_error(capsys, ["collect", "--task", "reach", "--episodes", "1", "--workers", "0", "--overwrite",
-                                "--out", str(store)], busy)
+        one_line_error(["collect", "--task", "reach", "--episodes", "1", "--workers", "0", "--overwrite",
+                        "--out", str(store)], busy)
         assert tree_bytes(store) == before  # nothing was removed, replaced or written
     finally:
         kill(holder)
@@ -133,7 +122,7 @@ REPLACER = """
 
 
 @pytest.mark.parametrize("step", ["staged", "swapped", "halfway"])
-def test_replacing_a_store_is_crash_safe(tmp_path: Path, step: str, capsys: pytest.CaptureFixture) -> None:
+def test_replacing_a_store_is_crash_safe(tmp_path: Path, step: str, one_line_error) -> None:
     store = make_sample_store(tmp_path / "s.zarr")
     old = digest(store)
     proc = spawn(tmp_path, REPLACER, str(store), step, str(tmp_path / "paused"))
@@ -142,7 +131,7 @@ def test_replacing_a_store_is_crash_safe(tmp_path: Path, step: str, capsys: pyte
     finally:
         kill(proc)
     if step == "halfway":  # the old store is aside: a reader is told so, the next writer puts it back
-        one_line_error(capsys, ["info", str(store)], "no such store", "killed halfway")
+        one_line_error(["info", str(store)], "no such store", "killed halfway")
         EpisodeStore.open(store, "a").close()
     with EpisodeStore.open(store) as s:
         assert s.verify() == []
@@ -180,13 +169,13 @@ CREATOR = """
 """
 
 
-def test_the_loser_of_two_creates_fails_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_the_loser_of_two_creates_fails_in_one_line(tmp_path: Path, one_line_error) -> None:
     store, go = tmp_path / "new.zarr", tmp_path / "go"
     go.touch()
     winner = spawn(tmp_path, CREATOR, str(store), str(tmp_path / "ready"), str(go), str(tmp_path / "held"))
     try:
         wait_for(tmp_path / "held", winner)  # created (lock held), nothing committed yet
-        one_line_error(capsys, ["collect", "--task", "reach", "--episodes", "1", "--workers", "0", "--out", str(store)],
+        one_line_error(["collect", "--task", "reach", "--episodes", "1", "--workers", "0", "--out", str(store)],
                        f"is being written by another process (pid {winner.pid})")
         (tmp_path / "held.go").touch()
         assert winner.wait(timeout=60) == 0, winner.stderr.read()
@@ -222,7 +211,7 @@ def test_concurrent_creates_one_wins_the_others_fail_cleanly(tmp_path: Path) -> 
     ("action", "data_type", "int32", "array holds int32 frames"),
     ("obs.joint_pos", "trailing", 6, "of shape (6,)"),
 ])
-def test_array_dtype_and_shape_are_checked_against_the_schema(tmp_path: Path, capsys: pytest.CaptureFixture,
+def test_array_dtype_and_shape_are_checked_against_the_schema(tmp_path: Path, one_line_error,
                                                                key: str, field: str, value: object, shown: str) -> None:
     store = make_sample_store(tmp_path / "s.zarr")
     meta_file = store / "data" / key / "zarr.json"
@@ -232,7 +221,7 @@ def test_array_dtype_and_shape_are_checked_against_the_schema(tmp_path: Path, ca
     else:
         doc[field] = value
     meta_file.write_text(json.dumps(doc))
-    one_line_error(capsys, ["info", str(store), "--check"], f"data/{key}/zarr.json", shown, "schema declares")
+    one_line_error(["info", str(store), "--check"], f"data/{key}/zarr.json", shown, "schema declares")
     with pytest.raises(DemoError, match="schema declares"):
         EpisodeStore.open(store)
 
@@ -246,7 +235,7 @@ def poison(store: Path, key: str) -> None:
     chunk.write_bytes(values.tobytes())
 
 
-def test_failed_curate_names_its_input_and_leaves_no_output(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_failed_curate_names_its_input_and_leaves_no_output(tmp_path: Path, one_line_error) -> None:
     from demo.curate import synthetic
 
     good = synthetic.write_store(tmp_path / "good.zarr", synthetic.mixed_episodes(8, seed=3))
@@ -257,11 +246,11 @@ def test_failed_curate_names_its_input_and_leaves_no_output(tmp_path: Path, caps
         (bad / name).write_bytes(data)
     poison(bad, "obs.goal")
     out = tmp_path / "curated.zarr"
-    one_line_error(capsys, ["curate", str(bad), "--out", str(out)], f"{bad} episode 0", "obs.goal: non-finite")
+    one_line_error(["curate", str(bad), "--out", str(out)], f"{bad} episode 0", "obs.goal: non-finite")
     assert not out.exists() and leftovers(tmp_path, "curated.zarr") == []
     assert main(["curate", str(good), "--out", str(out)]) == 0  # a rerun needs no --overwrite
     before = digest(out)
-    one_line_error(capsys, ["curate", str(bad), "--out", str(out), "--overwrite"], f"{bad} episode 0")
+    one_line_error(["curate", str(bad), "--out", str(out), "--overwrite"], f"{bad} episode 0")
     assert digest(out) == before  # a failed --overwrite leaves the old output whole
 
 
@@ -318,7 +307,7 @@ CRASHED_COLLECT = """
 """
 
 
-def test_a_refused_append_writes_nothing(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_a_refused_append_writes_nothing(tmp_path: Path, one_line_error) -> None:
     store = tmp_path / "crashed.zarr"
     proc = spawn(tmp_path, CRASHED_COLLECT, str(store))
     assert proc.wait(timeout=120) == -signal.SIGKILL, proc.stderr.read()
@@ -326,8 +315,8 @@ def test_a_refused_append_writes_nothing(tmp_path: Path, capsys: pytest.CaptureF
         committed = s.num_frames
         assert s.num_episodes == 2 and s.array("action").shape[0] > committed  # spare rows left by the crash
     before = tree_bytes(store)
-    one_line_error(capsys, ["collect", "--task", "pick", "--episodes", "1", "--workers", "0", "--append",
-                            "--out", str(store)], "cannot append", "different task")
+    one_line_error(["collect", "--task", "pick", "--episodes", "1", "--workers", "0", "--append",
+                    "--out", str(store)], "cannot append", "different task")
     assert tree_bytes(store) == before
     assert leftovers(tmp_path, "crashed.zarr") == []  # nor a lock file left behind
 
@@ -337,8 +326,8 @@ def test_a_refused_append_writes_nothing(tmp_path: Path, capsys: pytest.CaptureF
     (1, 30, "1 training episode(s) with 30 labelled frame(s)"),
     (2, 3, "2 training episode(s) with 6 labelled frame(s)"),
 ])
-def test_training_below_the_minimum_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture, synthetic_store,
+def test_training_below_the_minimum_is_refused(tmp_path: Path, one_line_error, synthetic_store,
                                                episodes: int, length: int, needle: str) -> None:
     store = synthetic_store(tmp_path / "tiny.zarr", episodes=episodes, length=length)
-    one_line_error(capsys, ["train", str(store), "--out", str(tmp_path / "run"), "--steps", "2"],
+    one_line_error(["train", str(store), "--out", str(tmp_path / "run"), "--steps", "2"],
                    "too little to train on", needle, "the minimum is 2 episodes and one window of 16 frames")

@@ -41,12 +41,6 @@ def run_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, s
     return rc, out.out, out.err
 
 
-def one_line_error(err: str, *needles: str) -> None:
-    assert err.startswith("error: ") and err.strip().count("\n") == 0, err
-    for needle in needles:
-        assert needle in err, (needle, err)
-
-
 @pytest.fixture(scope="module")
 def moved(tmp_path_factory: pytest.TempPathFactory, torch_one_thread: None) -> dict[str, Path]:
     """A 3-episode reach store collected with a temporary robot, moved elsewhere, the robot deleted."""
@@ -103,7 +97,7 @@ def test_a_moved_store_and_run_work_without_the_robot_folder(
 
 
 def test_missing_or_changed_robot_files_fail_with_one_line(
-    moved: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    moved: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], one_line_error
 ) -> None:
     from demo.view.app import load_scene_model
 
@@ -114,24 +108,18 @@ def test_missing_or_changed_robot_files_fail_with_one_line(
     rc, out, _ = run_cli(["info", str(broken), "--json", "-"], capsys)
     status = json.loads(out)["robot_status"]  # info still shows the store, and says what is wrong
     assert rc == 0 and not status["ok"] and missing in status["detail"]
-    rc, _, err = run_cli(["info", str(broken), "--check"], capsys)
-    assert rc == 1
-    one_line_error(err, missing, "--robot")
-    rc, _, err = run_cli(["convert", str(broken), "--to", "ee7", "--out", str(tmp_path / "x.zarr")], capsys)
-    assert rc == 1 and not (tmp_path / "x.zarr").exists()
-    one_line_error(err, missing, "--robot")
+    one_line_error(["info", str(broken), "--check"], missing, "--robot", rc=1)
+    one_line_error(["convert", str(broken), "--to", "ee7", "--out", str(tmp_path / "x.zarr")], missing, "--robot", rc=1)
+    assert not (tmp_path / "x.zarr").exists()
     with EpisodeStore.open(broken) as opened:
         model, _, note = load_scene_model(opened.meta, where=broken)
     assert model is None and missing in note
-    rc, _, err = run_cli(["train", str(broken), "--algo", "bc", "--steps", "5", "--out", str(tmp_path / "run")], capsys)
-    assert rc == 1
-    one_line_error(err, missing, "--robot")
+    one_line_error(["train", str(broken), "--algo", "bc", "--steps", "5", "--out", str(tmp_path / "run")],
+                   missing, "--robot", rc=1)
 
     # A changed file is refused too; --robot points at a robot that can be found.
     (broken / ROBOT_DIR / "meshes" / "tetra.obj").write_text(TETRA.replace("0.01", "0.02"))
-    rc, _, err = run_cli(["convert", str(broken), "--to", "ee7", "--out", str(tmp_path / "x.zarr")], capsys)
-    assert rc == 1
-    one_line_error(err, missing, "sha256")
+    one_line_error(["convert", str(broken), "--to", "ee7", "--out", str(tmp_path / "x.zarr")], missing, "sha256", rc=1)
     fixed = make_robot(tmp_path / "again")
     rc, _, err = run_cli(["convert", str(broken), "--to", "ee7", "--out", str(tmp_path / "x.zarr"),
                           "--robot", str(fixed)], capsys)
@@ -139,13 +127,11 @@ def test_missing_or_changed_robot_files_fail_with_one_line(
 
 
 def test_a_run_without_its_robot_files_fails_naming_the_file(
-    moved: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    moved: dict[str, Path], tmp_path: Path, one_line_error
 ) -> None:
     run = Path(shutil.copytree(moved["tmp"] / "elsewhere" / "run", tmp_path / "run"))
     (run / ROBOT_DIR / "xml" / "panda.xml").unlink()
-    rc, _, err = run_cli(["eval", str(run), "--episodes", "1"], capsys)
-    assert rc == 1
-    one_line_error(err, str(run / ROBOT_DIR / "xml" / "panda.xml"), "--robot")
+    one_line_error(["eval", str(run), "--episodes", "1"], str(run / ROBOT_DIR / "xml" / "panda.xml"), "--robot", rc=1)
 
 
 @pytest.mark.parametrize("name", ["../x.xml", "/etc/passwd", "a/../../b.xml", "a\\b.xml", "./a.xml", ""])

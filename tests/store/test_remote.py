@@ -89,14 +89,6 @@ def info(capsys: pytest.CaptureFixture, store: str) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
-def error_line(capsys: pytest.CaptureFixture, argv: list[str]) -> str:
-    capsys.readouterr()
-    assert main(argv) != 0
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and err.startswith("error: "), err
-    return err
-
-
 def test_collect_to_s3_is_the_local_store_byte_for_byte(s3: Any, tmp_path: Path,
                                                         capsys: pytest.CaptureFixture) -> None:
     assert main([*COLLECT, "--out", url("reach.zarr")]) == 0
@@ -209,22 +201,22 @@ def test_one_writer_and_all_or_nothing_copies(s3: Any, tmp_path: Path) -> None:
     assert not s3.exists(f"{BUCKET}/robot.zarr") and not s3.exists(f"{BUCKET}/.robot.zarr.lock")
 
 
-def test_bad_urls_are_one_line_errors(s3: Any, tmp_path: Path, capsys: pytest.CaptureFixture,
+def test_bad_urls_are_one_line_errors(s3: Any, tmp_path: Path, one_line_error,
                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    assert "bucket s3://no-such-bucket does not exist" in error_line(capsys, ["info", "s3://no-such-bucket/x.zarr"])
-    err = error_line(capsys, [*COLLECT, "--out", "s3://no-such-bucket/x.zarr"])
+    assert "bucket s3://no-such-bucket does not exist" in one_line_error(["info", "s3://no-such-bucket/x.zarr"])
+    err = one_line_error([*COLLECT, "--out", "s3://no-such-bucket/x.zarr"])
     assert "bucket s3://no-such-bucket does not exist" in err
-    assert error_line(capsys, ["info", url("absent.zarr")]).endswith(": no such store")
-    assert "names a bucket, not a store in it" in error_line(capsys, ["info", f"s3://{BUCKET}"])
-    assert "unknown scheme nosuch://" in error_line(capsys, ["info", "nosuch://b/x.zarr"])
+    assert one_line_error(["info", url("absent.zarr")]).endswith(": no such store")
+    assert "names a bucket, not a store in it" in one_line_error(["info", f"s3://{BUCKET}"])
+    assert "unknown scheme nosuch://" in one_line_error(["info", "nosuch://b/x.zarr"])
     if importlib.util.find_spec("gcsfs") is None:
-        assert "gs:// needs gcsfs: pip install -e '.[gcs]'" in error_line(capsys, ["info", "gs://b/x.zarr"])
+        assert "gs:// needs gcsfs: pip install -e '.[gcs]'" in one_line_error(["info", "gs://b/x.zarr"])
     monkeypatch.chdir(tmp_path)
-    assert "demo import writes a local store" in error_line(capsys, ["import", str(tmp_path), "--out", url("i.zarr")])
+    assert "demo import writes a local store" in one_line_error(["import", str(tmp_path), "--out", url("i.zarr")])
     assert not list(tmp_path.iterdir())  # no local "s3:" folder made of the URL
 
 
-def test_unreachable_endpoint_is_one_line(s3: Any, capsys: pytest.CaptureFixture,
+def test_unreachable_endpoint_is_one_line(s3: Any, one_line_error,
                                           monkeypatch: pytest.MonkeyPatch) -> None:
     import s3fs
 
@@ -236,7 +228,7 @@ def test_unreachable_endpoint_is_one_line(s3: Any, capsys: pytest.CaptureFixture
     s3fs.S3FileSystem.clear_instance_cache()
     gc.collect()  # the dropped filesystems' sessions complain on stderr when collected: not during the command
     try:
-        err = error_line(capsys, ["info", url("reach.zarr")])
+        err = one_line_error(["info", url("reach.zarr")])
     finally:
         s3fs.S3FileSystem.clear_instance_cache()
     assert "cannot reach the object store" in err and "AWS_ENDPOINT_URL" in err

@@ -1,0 +1,101 @@
+"""The configuration of the DAgger family (:mod:`demo.imitation.dagger`): rounds, rollouts, the beta
+schedule, the HG-DAgger gate and the label budget, over the learner's :class:`TrainConfig`.
+
+Plain data (no torch), so that ``demo train --help`` shows its defaults and :mod:`demo.algorithms`
+names it without loading a network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, NamedTuple
+
+from demo.errors import DemoError
+from demo.training.config import DAGGER_DEFAULTS, TrainConfig, for_policy, setting
+
+
+class Member(NamedTuple):
+    plugin: str  # "module:Class" of its demo.imitation.dagger.Family subclass (its own options: --algo-opt)
+    summary: str
+
+
+# The DAgger family: one rollout-and-aggregate loop (demo.imitation.dagger), a plugin per member.
+FAMILY: dict[str, Member] = {
+    "dagger": Member("demo.imitation.dagger:Family", "DAgger (beta schedule); HG-DAgger with --gate"),
+    "safedagger": Member("demo.imitation.safedagger:SafeDagger", "SafeDAgger: a classifier decides where the expert takes over"),
+    "aggrevate": Member("demo.imitation.aggrevate:AggreVaTe", "AggreVaTe(D): cost-to-go labels from expert roll-outs"),
+    "dart": Member("demo.imitation.dart:Dart", "DART: demonstrations under noise estimated from the learner's errors"),
+    "perturb": Member("demo.imitation.perturb:Perturb", "state perturbation with expert labels"),
+}
+
+
+@dataclass
+class DaggerConfig:
+    """DAgger's own hyperparameters; ``train`` holds round 0's (and the optimiser's)."""
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    task: str | None = setting(None, "The task to roll out (must be the data's).", unset="the data's")
+    rounds: int = setting(5, "Rounds of rollouts + aggregation + retraining.")
+    episodes_per_round: int = setting(10, "Learner rollouts per round.")
+    round_steps: int = setting(2000, "Optimiser steps of the learner trained after each round.")
+    warm_start: bool = setting(False, "Fine-tune the previous learner instead of training a new one per round.")
+    refit_normalizers: bool = setting(False, "Refit the normalisers to each round's aggregate (default: keep the "
+                                             "demonstrations').")
+    beta: str = setting("indicator", "Expert-mixing schedule: indicator | linear:N | exp:P.")
+    gate: str | None = setting(None, "HG-DAgger: the expert takes over and labels only where the learner strays by THRESH "
+                                     "rad (safedagger: the deviation its classifier predicts).", metavar="deviation:THRESH",
+                               unset="plain DAgger")
+    max_labels: int | None = setting(None, "Stop rolling out once this many expert labels are spent (demonstrations "
+                                           "included): equal-budget comparisons.", unset="no limit")
+
+    def beta_at(self, r: int) -> float:
+        kind, _, arg = self.beta.partition(":")
+        try:
+            if kind == "indicator" and not arg:
+                return 0.0
+            if kind == "linear":
+                return max(0.0, 1.0 - r / float(arg))
+            if kind == "exp":
+                return float(arg) ** r
+        except ValueError:
+            pass
+        raise DemoError("--beta", f"{self.beta!r} is not indicator, linear:N or exp:P")
+
+    def gate_threshold(self) -> float | None:
+        if self.gate is None:
+            return None
+        kind, _, arg = self.gate.partition(":")
+        try:
+            value = float(arg)
+        except ValueError:
+            value = -1.0
+        if kind != "deviation" or value <= 0:
+            raise DemoError("--gate", f"{self.gate!r} is not deviation:THRESH with THRESH > 0 (rad)")
+        return value
+
+    def check(self) -> None:
+        self.train.check()
+        if self.rounds < 0:
+            raise DemoError("--rounds", f"must be >= 0, got {self.rounds}")
+        if self.episodes_per_round < 1:
+            raise DemoError("--episodes-per-round", f"must be at least 1, got {self.episodes_per_round}")
+        if self.round_steps < 1:
+            raise DemoError("--round-steps", f"must be at least 1, got {self.round_steps}")
+        self.beta_at(1)
+        self.gate_threshold()
+        if self.max_labels is not None and self.max_labels < 1:
+            raise DemoError("--max-labels", f"must be at least 1, got {self.max_labels}")
+        b = self.beta_at(1)
+        if not 0 <= b <= 1:
+            raise DemoError("--beta", f"beta must lie in [0, 1], got {b} in round 1")
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["train"] = self.train.to_json()
+        return d
+
+
+def learner_config(**given: Any) -> TrainConfig:
+    """The learner's resolved config: ``given`` values, then :data:`DAGGER_DEFAULTS`, then the policy's."""
+    given = {k: v for k, v in given.items() if v is not None}
+    return for_policy(given.pop("algo", "bc"), **{**DAGGER_DEFAULTS, **given})

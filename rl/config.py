@@ -1,0 +1,148 @@
+"""The configurations of the RL algorithms (PPO, GAIL/AIRL, linear IRL): every hyperparameter and its default.
+
+Plain data (no torch), so that ``demo irl train --help`` shows the defaults and :mod:`demo.algorithms`
+names them without loading a network. The algorithms themselves: :mod:`demo.rl.ppo`,
+:mod:`demo.rl.adversarial`, :mod:`demo.rl.irl_linear`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from demo.errors import DemoError
+
+ACTIONS = ("ee7", "joint_pos")  # what an RL policy outputs (demo.rl.ppo's module docstring)
+KINDS = ("gail", "airl")
+GAIL_REWARDS = ("softplus", "logit")
+AIRL_REWARDS = ("logit", "f")
+GAIL_INPUT_NAMES = ("sa", "ss", "s")  # (s, a), (s, s'), s': what GAIL's discriminator reads
+METHODS = ("maxent", "apprenticeship")  # linear-reward IRL
+
+
+@dataclass
+class PPOConfig:
+    """Everything a PPO run (and the RL inside GAIL, AIRL and linear IRL) is trained with."""
+
+    task: str = "reach"
+    task_options: dict[str, Any] = field(default_factory=dict)
+    robot: str | None = None  # robot config TOML; default the built-in arm
+    out: str = ""
+    reward: str = "task"  # the dense task reward (demo.rl.rewards); IRL algorithms bring their own
+    action: str = "joint_pos"  # joint_pos | ee7 (module docstring)
+    obs_keys: tuple[str, ...] = ()  # default: demo.policies.observation's state keys
+    seed: int = 0
+    total_steps: int = 480_000  # environment (control) steps; reach: 92/100 in demo eval after 480,000 (28 min, shared CPU)
+    num_envs: int = 16
+    num_steps: int = 100  # control steps per environment per iteration (reach's horizon)
+    epochs: int = 10
+    minibatches: int = 8
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float | None = None  # stop an iteration's epochs once the approximate KL exceeds it
+    norm_reward: bool = True  # scale rewards by a running std of the discounted return
+    hidden: tuple[int, ...] = (256, 256)  # actor and critic MLP widths (tanh)
+    init_log_std: float = -1.0  # initial log std of the Gaussian, normalised action units (std 0.37)
+    max_ee_step: float = 0.02  # m per control step: the ee7 position bound
+    max_rot_step: float = 0.1  # rad per control step: the ee7 rotation bound
+    max_joint_step: float = 0.1  # rad per control step: the joint_pos bound (relative to the measured joints)
+    eval_every: int = 10  # iterations between rollout evaluations (0: only at the end)
+    eval_episodes: int = 20
+    threads: int = 1
+
+    def check(self) -> None:
+        if self.action not in ACTIONS:
+            raise DemoError("--action", f"RL acts in {' or '.join(ACTIONS)}, not {self.action!r}")
+        positive = {"total_steps": self.total_steps, "num_envs": self.num_envs, "num_steps": self.num_steps,
+                    "epochs": self.epochs, "minibatches": self.minibatches, "eval_episodes": self.eval_episodes}
+        for name, value in positive.items():
+            if value < 1:
+                raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
+        if self.num_envs * self.num_steps < self.minibatches:
+            raise DemoError("--minibatches", "more minibatches than transitions per iteration")
+        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1 and self.clip > 0 and self.lr > 0):
+            raise DemoError("--gamma", "needs 0 < gamma <= 1, 0 <= gae_lambda <= 1, clip > 0 and lr > 0")
+        if min(self.max_ee_step, self.max_rot_step, self.max_joint_step) <= 0:
+            raise DemoError("--max-ee-step", "action bounds must be > 0")
+
+    @property
+    def batch(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def iterations(self) -> int:
+        return max(1, math.ceil(self.total_steps / self.batch))
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["obs_keys"], d["hidden"] = list(self.obs_keys), list(self.hidden)
+        return d
+
+
+@dataclass
+class AdversarialConfig:
+    rl: PPOConfig = field(default_factory=PPOConfig)
+    data: str = ""  # the demonstrations (a store of the task, in the policy's action representation)
+    kind: str = "gail"  # gail | airl
+    demos: int | None = None  # the first N successful episodes (default all)
+    inputs: str = "s"  # GAIL's discriminator input: sa (s, a), ss (s, s') or s (s'); AIRL is always (s, s') + log pi
+    # the state the discriminator reads (ObsSpec keys); default the task's relative_goal_keys, else the policy's
+    disc_obs_keys: tuple[str, ...] = ()
+    disc_hidden: tuple[int, ...] = (256, 256)
+    disc_lr: float = 3e-4
+    disc_epochs: int = 2  # passes over each iteration's rollout
+    disc_batch: int = 256  # policy (and as many expert) samples per discriminator step
+    grad_penalty: float = 1.0
+    init_bc: bool = True
+    bc_steps: int = 2000
+    gail_reward: str = "logit"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
+    airl_reward: str = "logit"  # airl: logit (f - log pi, the paper's) | f (without the entropy term)
+
+    def check(self) -> None:
+        self.rl.check()
+        if self.kind not in KINDS:
+            raise DemoError("--algo", f"adversarial imitation is {' or '.join(KINDS)}, not {self.kind!r}")
+        if self.gail_reward not in GAIL_REWARDS:
+            raise DemoError("--gail-reward", f"GAIL's reward is {' or '.join(GAIL_REWARDS)}, not {self.gail_reward!r}")
+        if self.airl_reward not in AIRL_REWARDS:
+            raise DemoError("--airl-reward", f"AIRL's reward is {' or '.join(AIRL_REWARDS)}, not {self.airl_reward!r}")
+        if self.inputs not in GAIL_INPUT_NAMES:
+            raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a), ss (s, s') or s (s'), not {self.inputs!r}")
+        if self.disc_epochs < 1 or self.disc_batch < 1 or self.grad_penalty < 0 or self.bc_steps < 0:
+            raise DemoError("--disc-epochs", "disc_epochs and disc_batch must be >= 1, grad_penalty and bc_steps >= 0")
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["rl"], d["disc_hidden"], d["disc_obs_keys"] = self.rl.to_json(), list(self.disc_hidden), list(self.disc_obs_keys)
+        return d
+
+
+@dataclass
+class LinearIRLConfig:
+    rl: PPOConfig = field(default_factory=PPOConfig)
+    data: str = ""
+    method: str = "maxent"  # maxent | apprenticeship
+    demos: int | None = None
+    inner_iterations: int = 5  # PPO iterations per reward update
+    lr: float = 0.05  # maxent: Adam step on w
+    l2: float = 0.0  # maxent: L2 penalty on w
+
+    def check(self) -> None:
+        self.rl.check()
+        if self.method not in METHODS:
+            raise DemoError("--algo", f"linear IRL is {' or '.join(METHODS)}, not {self.method!r}")
+        if self.inner_iterations < 1 or self.lr <= 0 or self.l2 < 0:
+            raise DemoError("--inner-iterations", "inner_iterations must be >= 1, lr > 0, l2 >= 0")
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["rl"] = self.rl.to_json()
+        return d

@@ -1,0 +1,193 @@
+"""Reading a store: the episode table's views, episodes' frames (concurrently per key), selections by
+index, mask or boolean array, masks, checksums and the summary `demo info` shows. A mixin of
+:class:`~demo.store.episode_store.EpisodeStore`; frames are ``{key: array[length, *shape]}``.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from zarr.core.sync import sync
+
+from demo.errors import DemoError
+from demo.store import episode_table
+from demo.store.image_bytes import camera_bytes
+from demo.store.layout import IMAGE_PREFIX, TABLE_FILE
+from demo.store.location import StorePath
+from demo.store.spec import StoreMeta
+from demo.store.zarr_io import first_line, gather
+
+# What :meth:`StoreReading.select` takes: None (all), a mask name, a boolean array or indices.
+EpisodeSelection = None | str | Sequence[int] | np.ndarray
+
+
+class StoreReading:
+    """Everything that reads a store (see :class:`~demo.store.episode_store.EpisodeStore`)."""
+
+    path: StorePath
+    meta: StoreMeta
+    _dir: StorePath
+    _table: pa.Table
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def num_episodes(self) -> int:
+        return self._table.num_rows
+
+    @property
+    def num_frames(self) -> int:
+        return int(self._table.column("length").to_numpy().sum()) if self.num_episodes else 0
+
+    @property
+    def episode_ends(self) -> np.ndarray:
+        return np.cumsum(self._table.column("length").to_numpy(), dtype=np.int64)
+
+    @property
+    def episode_lengths(self) -> np.ndarray:
+        return self._table.column("length").to_numpy().astype(np.int64)
+
+    @property
+    def table(self) -> pa.Table:
+        """The episode table (read-only view; edit with :meth:`set_column` / :meth:`set_mask`)."""
+        return self._table
+
+    def episode_info(self, index: int) -> dict[str, Any]:
+        self._check_index(index)
+        return {k: v[0] for k, v in self._table.slice(index, 1).to_pydict().items()}
+
+    def column(self, name: str) -> np.ndarray:
+        if name not in self._table.column_names:
+            raise DemoError(self.path / TABLE_FILE, f"has no column {name!r}")
+        return self._table.column(name).to_numpy(zero_copy_only=False)
+
+    def _check_index(self, index: int) -> None:
+        if not 0 <= index < self.num_episodes:
+            raise DemoError(self.path, f"has no episode {index} (it has {self.num_episodes})")
+
+    def _read(self, key: str, start: int, stop: int) -> np.ndarray:
+        return self._read_keys([key], start, stop)[key]
+
+    def _read_keys(self, keys: Sequence[str], start: int, stop: int) -> dict[str, np.ndarray]:
+        """Frames ``[start, stop)`` of each key, read concurrently (on object storage: one round trip)."""
+        arrays = [self.array(k) for k in keys]
+        values = sync(gather(*(a.async_array.getitem(slice(start, stop)) for a in arrays)))
+        out = {}
+        for key, value in zip(keys, values):
+            if isinstance(value, BaseException):
+                raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({first_line(value)})")
+            out[key] = np.asarray(value)
+        return out
+
+    def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """All frames of one episode: ``{key: array[length, ...]}``."""
+        self._check_index(index)
+        start = int(self._table.column("start")[index].as_py())
+        stop = start + int(self._table.column("length")[index].as_py())
+        return self._read_keys(keys or list(self.meta.features), start, stop)
+
+    def iter_episodes(
+        self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
+    ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+        for index in self.select(episodes):
+            yield int(index), self.read_episode(int(index), keys)
+
+    def load(
+        self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Frames of the selected episodes in memory, concatenated, with their episode ends."""
+        keys = list(keys or self.meta.features)
+        chosen = self.select(episodes)
+        total = self.num_frames
+        if len(chosen) == self.num_episodes:
+            return self._read_keys(keys, 0, total), self.episode_ends
+        starts = self.column("start")[chosen]
+        lengths = self.episode_lengths[chosen]
+        frames = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lengths)]) if len(chosen) else np.zeros(0, int)
+        data = {}
+        for k in keys:
+            full = self._read(k, 0, total)
+            data[k] = full[frames]
+        return data, np.cumsum(lengths, dtype=np.int64)
+
+    def select(self, episodes: EpisodeSelection = None) -> np.ndarray:
+        """Episode indices for ``None`` (all), a mask name, a boolean array or a list of indices."""
+        if episodes is None:
+            return np.arange(self.num_episodes)
+        if isinstance(episodes, str):
+            return np.flatnonzero(self.mask(episodes))
+        arr = np.asarray(episodes)
+        if arr.dtype == bool:
+            if arr.shape != (self.num_episodes,):
+                raise DemoError(self.path, f"episode mask has {arr.size} entries for {self.num_episodes} episodes")
+            return np.flatnonzero(arr)
+        arr = arr.astype(np.int64).reshape(-1)
+        bad = arr[(arr < 0) | (arr >= self.num_episodes)]
+        if bad.size:
+            raise DemoError(self.path, f"has no episode {int(bad[0])} (it has {self.num_episodes})")
+        return arr
+
+    # ------------------------------------------------------------------ masks and per-episode columns
+    def mask_names(self) -> list[str]:
+        p = episode_table.MASK_PREFIX
+        return [c[len(p):] for c in self._table.column_names if c.startswith(p)]
+
+    def mask(self, name: str) -> np.ndarray:
+        column = episode_table.MASK_PREFIX + name
+        if column not in self._table.column_names:
+            raise DemoError(self.path, f"has no mask {name!r} (masks: {', '.join(self.mask_names()) or 'none'})")
+        return self._table.column(column).to_numpy(zero_copy_only=False).astype(bool)
+
+    # ------------------------------------------------------------------ checksums
+    def _checksum(self, data: dict[str, np.ndarray]) -> int:
+        crc = 0
+        for key in self.meta.features:
+            crc = zlib.crc32(np.ascontiguousarray(data[key]).view(np.uint8).reshape(-1), crc)
+        return crc
+
+    def verify(self) -> list[str]:
+        """Read every committed frame and compare it with the episode's checksum; returns the problems."""
+        problems = []
+        for index in range(self.num_episodes):
+            try:
+                data = self.read_episode(index)
+            except DemoError as exc:
+                problems.append(f"episode {index}: {exc}")
+                continue
+            if self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
+                problems.append(f"episode {index}: data does not match its checksum (corrupted or missing chunk)")
+        return problems
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict[str, Any]:
+        """What `demo info` shows, as plain JSON-able data."""
+        t = self._table
+        success = t.column("success").to_numpy(zero_copy_only=False) if self.num_episodes else np.zeros(0, bool)
+
+        def counts(col: str) -> dict[str, int]:
+            values, n = np.unique(np.asarray(t.column(col).to_pylist(), dtype=object).astype(str), return_counts=True)
+            return {str(v): int(c) for v, c in zip(values, n)}
+
+        return {
+            "path": str(self.path),
+            "format": self.meta.format,
+            "schema_version": self.meta.schema_version,
+            "episodes": self.num_episodes,
+            "frames": self.num_frames,
+            "fps": self.meta.fps,
+            "task": self.meta.task,
+            "robot": self.meta.robot,
+            "action": self.meta.action.to_json(),
+            "features": {k: v.to_json() for k, v in self.meta.features.items()},
+            "success_rate": float(success.mean()) if len(success) else None,
+            "mean_length": float(self.episode_lengths.mean()) if self.num_episodes else None,
+            "sources": counts("source") if self.num_episodes else {},
+            "operators": counts("operator") if self.num_episodes else {},
+            "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
+            "camera_bytes": camera_bytes({k: (self.array(k), self._dir / "data" / k) for k in self.meta.features
+                                          if k.startswith(IMAGE_PREFIX)}, self.num_frames),
+            "provenance": self.meta.provenance,
+        }
