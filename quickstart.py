@@ -13,19 +13,20 @@ Each stage is the same library call its subcommand makes; the run directory keep
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+import time
 from typing import Any
 
+from demo import algorithms
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.convert.check import round_trip
 from demo.convert.convert import ConvertOptions, convert_store
 from demo.curate.curate import curate
 from demo.errors import DemoError
 from demo.progress import Progress
-from demo.training.config import for_policy
+from demo.training.config import TrainConfig
 
 
 @dataclass
@@ -34,7 +35,7 @@ class QuickstartConfig:
     task: str = "pick"
     expert_episodes: int = 100
     poor_episodes: int = 20  # mixed in so that curation has something to find
-    steps: int | None = None  # BC gradient steps (None: BC's default, demo.training.config.for_policy)
+    steps: int | None = None  # BC gradient steps (None: BC's default, demo.training.config.POLICY_DEFAULTS)
     eval_episodes: int = 50
     workers: int = 2
     seed: int = 0
@@ -48,7 +49,6 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
     """Run every stage; ``on_stage(name, result, seconds)`` after each, ``progress`` within each
     (the stages' own ticks). Returns all results."""
     from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
-    from demo.imitation.bc import train  # deferred: torch stays out of demo --help
 
     out = Path(config.out)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -83,8 +83,8 @@ def run(config: QuickstartConfig, on_stage: Callable[[str, dict[str, Any], float
         }
 
     def train_stage() -> dict[str, Any]:
-        tc = for_policy("bc", data=str(curated), out=str(run_dir), seed=config.seed, steps=config.steps)
-        summary = train(tc, overwrite=True, command="demo quickstart", progress=progress)
+        tc = TrainConfig(algo="bc", data=str(curated), out=str(run_dir), seed=config.seed, steps=config.steps)
+        summary = algorithms.train("bc", tc, overwrite=True, command="demo quickstart", progress=progress)
         return {"run": str(run_dir), "steps": config.steps, **{k: v for k, v in summary.items() if k != "out"}}
 
     def eval_stage() -> dict[str, Any]:

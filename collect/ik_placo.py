@@ -55,7 +55,7 @@ def quiet_stdout() -> Iterator[None]:
 
 def load_placo_robot(robot: Any) -> Any:
     """A ``placo.RobotWrapper`` of a demo robot config (its MJCF, keyframes removed)."""
-    import placo  # deferred: heavy optional dependency (placo)
+    import placo  # deferred: heavy dependency (placo)
 
     spec = robot.spec()
     for key in list(spec.keys):
@@ -90,7 +90,7 @@ class PlacoIK:
     """
 
     def __init__(self, robot: Any, dt: float, params: IKParams = IKParams(), table: tuple[float, float] | None = None):
-        import placo  # deferred: heavy optional dependency (placo)
+        import placo  # deferred: heavy dependency (placo)
 
         self.params = params
         self.joints = tuple(robot.arm_joints)

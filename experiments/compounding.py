@@ -100,18 +100,20 @@ every finished stage.
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass, field
 import json
 import math
-import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
+import time
 from typing import Any, Callable
 
 import numpy as np
 
+from demo import algorithms
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.executor import ExecutorConfig
+from demo.imitation.config import DaggerConfig
 from demo.jsonio import write_json
 from demo.store import EpisodeStore
 from demo.training.config import TrainConfig, for_policy
@@ -268,7 +270,6 @@ class _Value:
     def family(self, method: str, rounds: int, episodes: int, options: dict[str, str], budget: int | None = None) -> Path:
         """A family member's run from the first ``demos`` demonstrations (kept once finished); it stops
         rolling out once it has spent ``budget`` labels."""
-        from demo.imitation.dagger import DaggerConfig, make_family, train_dagger  # deferred: torch stays out of demo --help
         from demo.policies.checkpoint import RUN_FILE  # deferred: torch stays out of demo --help
 
         c, run_dir = self.c, self.d / method
@@ -281,13 +282,12 @@ class _Value:
         config = DaggerConfig(train=_train_config(c, demos, run_dir), rounds=rounds, episodes_per_round=episodes,
                               round_steps=c.round_steps, warm_start=c.warm_start, beta=c.beta,
                               gate=c.gate if gated else None, max_labels=budget)
-        train_dagger(config, family=make_family(FAMILY_OF[method], options), overwrite=True,
-                     executor=ExecutorConfig("process", c.workers))
+        algorithms.train(FAMILY_OF[method], config, options=options, overwrite=True,
+                         executor=ExecutorConfig("process", c.workers))
         return run_dir
 
     def bc(self, method: str, budget: int, noise: float = 0.0, chunk: int = 1) -> tuple[Path, int]:
         """BC (``chunk``: chunked) on the fewest leading demonstrations (``noise``: of the noisy pool) reaching ``budget``."""
-        from demo.imitation.bc import train  # deferred: torch stays out of demo --help
         from demo.policies.checkpoint import POLICY_FILE  # deferred: torch stays out of demo --help
 
         name = "noisy_pool" if noise else "pool"
@@ -297,7 +297,7 @@ class _Value:
         run_dir = self.d / method
         if not (run_dir / POLICY_FILE).exists():
             self.log(f"[{self.c.option} {self.value}] {method} on {k} demos ({budget} labels)")
-            train(_train_config(self.c, data, run_dir, chunk=chunk), overwrite=True)
+            algorithms.train("bc", _train_config(self.c, data, run_dir, chunk=chunk), overwrite=True)
         return run_dir, k
 
 

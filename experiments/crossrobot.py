@@ -31,13 +31,14 @@ and runs are kept under ``out`` (replaced on every run) for ``demo eval`` and in
 
 from __future__ import annotations
 
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+import time
 from typing import Any, Callable
 
 import numpy as np
 
+from demo import algorithms
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.convert.convert import ConvertOptions, convert_store
 from demo.errors import DemoError
@@ -87,7 +88,6 @@ def _robot(config_path: str, task: str) -> Any:
 
 def run(c: CrossRobotConfig, log: Callable[[str], None] = print) -> dict[str, Any]:
     from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
-    from demo.imitation.bc import train  # deferred: torch stays out of demo --help
     from demo.training.data import ROBOT_AGNOSTIC_KEYS  # deferred: torch stays out of demo --help
 
     if len(c.robots) != 2:
@@ -117,7 +117,8 @@ def run(c: CrossRobotConfig, log: Callable[[str], None] = print) -> dict[str, An
 
     def fit(name: str, data: str | tuple[str, ...], obs_keys: tuple[str, ...] = ()) -> Path:
         run_dir = out / "runs" / name
-        train(for_policy("bc", data=data, out=str(run_dir), seed=c.seed, steps=c.steps, obs_keys=obs_keys), overwrite=True)
+        algorithms.train("bc", for_policy("bc", data=data, out=str(run_dir), seed=c.seed, steps=c.steps, obs_keys=obs_keys),
+                         overwrite=True)
         return run_dir
 
     def trained(name: str, data: str | tuple[str, ...], obs_keys: tuple[str, ...] = ()) -> Path:

@@ -40,7 +40,8 @@ def classify(ee: np.ndarray, obstacle: np.ndarray) -> str:
 
 
 def rollouts(run: str, starts: int, samples: int, seed: int, execute: int | None = None) -> dict[str, Any]:
-    from demo.evaluation.evaluate import execution_for, make_actor, make_eval_env, resolve_target, single_thread  # deferred: torch stays out of demo --help
+    from demo.evaluation.evaluate import (  # deferred: torch stays out of demo --help
+        execution_for, make_actor, make_eval_env, resolve_target, single_thread)
     from demo.policies.checkpoint import load_bundle  # deferred: torch stays out of demo --help
 
     bundle = load_bundle(run)

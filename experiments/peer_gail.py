@@ -1,9 +1,11 @@
 """`demo bench peer-gail`: the ``imitation`` library's GAIL on a task's Gymnasium environment, as a peer
 of ``demo irl train --algo gail`` (issue #20): same demonstrations, same evaluation episodes.
+One file of ~570 lines on purpose: one experiment, read top to bottom (the peer's venv, the shared
+demonstrations, the peer's run in its interpreter, ours, the comparison).
 
 The peer runs in its own virtual environment, never in the project's: ``imitation`` 1.0.1 pins
 ``gymnasium~=0.29`` and ``stable-baselines3~=2.2.1`` where the project requires ``gymnasium>=1``
-(README, Reinforcement and inverse RL)::
+(docs/algorithms.md, Reinforcement and inverse RL)::
 
     python3 -m venv ../venv-imitation
     ../venv-imitation/bin/pip install -e .                   # demo and its dependencies (from the repository)
@@ -352,8 +354,8 @@ def evaluate(env: gymnasium.Env, act: Callable[[np.ndarray], np.ndarray], seeds:
 def require_peer() -> tuple[Any, Any]:
     """``(imitation, stable_baselines3)``, or one DemoError line saying how to install them."""
     try:
-        import imitation  # deferred: optional dependency (own venv)
-        import stable_baselines3  # deferred: optional dependency (own venv)
+        import imitation  # deferred: optional dependency (the imitation venv)
+        import stable_baselines3  # deferred: optional dependency (the imitation venv)
     except ImportError as exc:
         raise DemoError("imitation", f"not importable in this Python ({exc.name or exc}); the peer GAIL runs in its "
                                      f"own venv: {INSTALL}") from None
@@ -406,15 +408,15 @@ def run(config: PeerGailConfig, progress: Progress | None = None) -> dict[str, A
     the JSON-able result (module docstring)."""
     config.check()
     require_peer()
-    from imitation.algorithms.adversarial import common as adversarial_common  # deferred: optional dependency (own venv)
-    from imitation.algorithms.adversarial.gail import GAIL  # deferred: optional dependency (own venv)
-    from imitation.data.types import Trajectory  # deferred: optional dependency (own venv)
-    from imitation.rewards.reward_nets import BasicRewardNet  # deferred: optional dependency (own venv)
-    from imitation.util import logger as imitation_logger  # deferred: optional dependency (own venv)
-    from imitation.util.networks import RunningNorm  # deferred: optional dependency (own venv)
-    from stable_baselines3 import PPO  # deferred: optional dependency (own venv)
-    from stable_baselines3.common.utils import set_random_seed  # deferred: optional dependency (own venv)
-    from stable_baselines3.common.vec_env import DummyVecEnv  # deferred: optional dependency (own venv)
+    from imitation.algorithms.adversarial import common as adversarial_common  # deferred: optional dependency (the imitation venv)
+    from imitation.algorithms.adversarial.gail import GAIL  # deferred: optional dependency (the imitation venv)
+    from imitation.data.types import Trajectory  # deferred: optional dependency (the imitation venv)
+    from imitation.rewards.reward_nets import BasicRewardNet  # deferred: optional dependency (the imitation venv)
+    from imitation.util import logger as imitation_logger  # deferred: optional dependency (the imitation venv)
+    from imitation.util.networks import RunningNorm  # deferred: optional dependency (the imitation venv)
+    from stable_baselines3 import PPO  # deferred: optional dependency (the imitation venv)
+    from stable_baselines3.common.utils import set_random_seed  # deferred: optional dependency (the imitation venv)
+    from stable_baselines3.common.vec_env import DummyVecEnv  # deferred: optional dependency (the imitation venv)
 
     tick = or_silent(progress)
     total = _Clock()

@@ -25,14 +25,15 @@ interrupted bench continues where it stopped (a training stopped by Ctrl-C resum
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import asdict, dataclass, field
+import json
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np
 
+from demo import algorithms
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.experiments import multimodal
@@ -156,16 +157,19 @@ def train(name: str, c: PoliciesConfig, data: Path, runs: Path, progress: Progre
 
             distil(TrainConfig(algo=entry.algo, steps=c.distil_steps, **common), runs / entry.teacher, **how)
         else:
-            from demo.imitation.bc import train as train_bc  # deferred: torch stays out of demo --help
 
-            train_bc(for_policy(entry.algo, steps=c.steps, policy=dict(entry.options), **common), **how)
+            algorithms.train(entry.algo, for_policy(entry.algo, steps=c.steps, policy=dict(entry.options), **common), **how)
     return read_json(run / METRICS_FILE)["final"]
 
 
 def evaluation(name: str, c: PoliciesConfig, run: Path, progress: Progress) -> dict[str, Any]:
     """Success on ``demo eval``'s episodes and, on avoid, both sides; kept in ``run/bench_policies.json``
     and reused while the settings are the same."""
-    from demo.evaluation.evaluate import EvalConfig, evaluate, wilson_interval  # deferred: torch stays out of demo --help
+    from demo.evaluation.evaluate import (  # deferred: torch stays out of demo --help
+        EvalConfig,
+        evaluate,
+        wilson_interval,
+    )
     from demo.policies.checkpoint import read_json  # deferred: torch stays out of demo --help
 
     settings = {"eval_episodes": c.eval_episodes, "seed": c.seed, "starts": c.starts, "samples": c.samples}

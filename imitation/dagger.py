@@ -1,6 +1,8 @@
 """DAgger (Ross, Gordon & Bagnell 2011) and HG-DAgger (Kelly et al. 2019) with the tasks' experts.
 
-``demo train DATA --algo dagger --task T --rounds R --episodes-per-round K`` runs :func:`train_dagger`:
+``demo train DATA --algo dagger --task T --rounds R --episodes-per-round K`` runs :func:`train_dagger`
+(one file of ~500 lines on purpose: the loop every family member shares reads top to bottom, the
+members' hooks in :class:`Family`, their configuration in :mod:`demo.imitation.config`):
 
 0. DATA's episodes are copied into the run's own store ``RUN/data.zarr`` (DATA is never modified),
    with a per-frame flag ``info.labelled``; round 0 trains behaviour cloning on them exactly as
@@ -57,11 +59,11 @@ Everything else of a run (seeding, the run directory, the loop, checkpoints, met
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, closing
+import dataclasses
 from dataclasses import dataclass
+import importlib
 from pathlib import Path
 from typing import Any, Callable, ClassVar
 
@@ -69,17 +71,20 @@ import numpy as np
 import torch
 
 from demo.errors import DemoError
+from demo.evaluation.evaluate import make_actor, single_thread
 from demo.executor import ExecutorConfig, ordered_map, session
+from demo.imitation.config import FAMILY, DaggerConfig, learner_config
+from demo.policies import checkpoint as ckpt
+from demo.policies.actor import ExecConfig
+from demo.policies.observation import camera_list, image_keys
 from demo.progress import Progress
 from demo.seeds import dagger_seeds
+from demo.sim import make_env
+from demo.sim.robot_record import resolve_robot
 from demo.sim.rollout import StepCommand, rollout
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.location import absolute, store_path
-from demo.policies import checkpoint as ckpt
-from demo.policies.actor import ExecConfig
-from demo.imitation.config import FAMILY, DaggerConfig, learner_config
 from demo.training.data import LABEL_KEY, TrainingData, prepare
-from demo.evaluation.evaluate import make_actor, single_thread
 from demo.training.optim import Learner
 from demo.training.trainer import TrainingRun
 
@@ -116,9 +121,6 @@ def rollout_env_args(store: EpisodeStore, task: str | None, robot: str | None = 
     """``make_env``'s task and keyword arguments for rollouts aggregated into ``store``: its task with
     its robot (``robot``: a config that replaces the recorded one, resolved here), rendering the
     store's cameras, so that a pixel policy's rollouts are stored like its demonstrations."""
-    from demo.sim.robot_record import resolve_robot
-    from demo.policies.observation import camera_list, image_keys
-
     t = store.meta.task or {}
     name = t.get("name")
     if task and name and task != name:
@@ -135,8 +137,6 @@ def rollout_env_args(store: EpisodeStore, task: str | None, robot: str | None = 
 def make_env_for_store(store: EpisodeStore, task: str, env_kwargs: dict[str, Any]) -> Any:
     """The rollout environment (:func:`rollout_env_args`); refuses an expert that does not label in the
     store's action representation."""
-    from demo.sim import make_env
-
     env = make_env(task, **env_kwargs)
     if env.action_spec.name != store.meta.action.name or env.action_spec.dim != store.meta.action.dim:
         env.close()
@@ -350,8 +350,6 @@ _rollout: dict[str, Any] = {}  # a worker's environment and learner
 
 def _rollout_init(env_args: tuple[str, dict[str, Any]], record: dict[str, Any], weights: dict[str, np.ndarray],
                   execution: dict[str, Any], device: str) -> None:
-    from demo.sim import make_env
-
     torch.set_num_threads(1)
     task, env_kwargs = env_args
     env = make_env(task, **env_kwargs)

@@ -83,6 +83,7 @@ from torch.nn import functional as F
 
 from demo.errors import DemoError
 from demo.jsonio import replace_atomically
+from demo.policies import checkpoint as ckpt
 from demo.policies.gaussian import mlp
 from demo.policies.normalizer import OBS_CLIP
 from demo.policies.observation import ObsSpec
@@ -279,7 +280,6 @@ def save_reward(out: Path, adversary: Adversary) -> None:
 
 def load_reward(run: str | Path) -> tuple[Discriminator, dict[str, Any]]:
     """The discriminator of an adversarial run and its run record (never unpickles)."""
-    from demo.policies import checkpoint as ckpt
 
     run = Path(run)
     record = ckpt.read_run(run)

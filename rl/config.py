@@ -8,8 +8,8 @@ names them without loading a network. The algorithms themselves: :mod:`demo.rl.p
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
+import math
 from typing import Any
 
 from demo.errors import DemoError

@@ -31,11 +31,11 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
-from demo.store import ActionSpec, EpisodeStore
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.relative import RelativeActions
 from demo.rl.rewards import TaskReward
+from demo.store import ActionSpec, EpisodeStore
 
 
 @dataclass

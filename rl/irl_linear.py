@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
+from demo.figures import pyplot, save_figure
 from demo.progress import Progress
 from demo.rl.config import LinearIRLConfig
 from demo.rl.ppo import RLRun, Rollout
@@ -177,7 +178,6 @@ def train(config: LinearIRLConfig, *, progress: Progress | None = None, overwrit
 
 def plot_weights(history: Sequence[dict[str, Any]], result: dict[str, Any], path: Path, title: str = "") -> Path:
     """Recovered unit-norm weights beside the true ones (bars) and their course over the rounds."""
-    from demo.figures import pyplot, save_figure
 
     plt = pyplot()
     names = [f"{n} [{u}]" for n, u in zip(result["features"], result["units"])]

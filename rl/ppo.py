@@ -6,6 +6,10 @@ GAIL, AIRL and linear IRL (:mod:`demo.rl.adversarial`, :mod:`demo.rl.irl_linear`
 loop (:class:`RLRun`) with their learned reward in place of the task's. Measured on ``reach`` with the
 defaults: 92/100 in ``demo eval`` after 480,000 environment steps (28 min of a shared 2-core CPU).
 
+One file of ~600 lines on purpose: the algorithm reads top to bottom (environments, rollouts, GAE,
+the clipped update, the run), as CleanRL's do; its configuration is :class:`demo.rl.config.PPOConfig`
+and its network :mod:`demo.policies.gaussian`.
+
 **Action space.** The policy is a Gaussian over *normalised* actions in [-1, 1] (clipped when
 executed), mapped linearly onto per-step bounds. The default, ``joint_pos``, is joint position
 targets *relative to the measured joints* (+-``max_joint_step`` = 0.1 rad per control step; the
@@ -57,6 +61,8 @@ import torch
 from torch import nn
 
 from demo.errors import DemoError
+from demo.figures import pyplot, save_figure
+from demo.gym.env import DemoEnv
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
 from demo.policies.gaussian import GaussianConfig, GaussianPolicy, mlp
@@ -66,6 +72,7 @@ from demo.policies.policy import PolicySpec
 from demo.policies.relative import RelativeActions
 from demo.progress import Progress
 from demo.rl.config import PPOConfig
+from demo.rl.expert_data import load_expert
 from demo.rl.rewards import TaskReward, pearson, task_reward
 from demo.seeds import RL_OFFSET, episode_seed
 from demo.sim.robot_record import robot_record
@@ -133,7 +140,6 @@ class EnvPool:
     episode ends, from the RL seed stream (module docstring)."""
 
     def __init__(self, config: PPOConfig, n: int):
-        from demo.gym.env import DemoEnv
 
         self.config = config
         self.envs: list[DemoEnv] = []
@@ -410,7 +416,6 @@ class RLRun(Run):
     def demonstrations(self, path: str, demos: int | None = None) -> Any:
         """The first ``demos`` successful episodes of the store at ``path`` as transitions in this run's
         units (:func:`demo.rl.expert_data.load_expert`), recorded as the run's data."""
-        from demo.rl.expert_data import load_expert
 
         pool = self.pool
         expert = load_expert(path, self.config.task, pool.config.task_options, pool.obs_spec, pool.action_spec,
@@ -542,7 +547,6 @@ def episode_sums(values: np.ndarray, dones: np.ndarray) -> np.ndarray:
 def plot_rl(metrics: dict[str, Any], path: str | Path, title: str = "") -> Path:
     """Episode return of the dense task reward, evaluation success (95% interval) and, for a learned reward,
     its correlation with the dense one, against environment steps."""
-    from demo.figures import pyplot, save_figure
 
     plt = pyplot()
     its = [e for e in metrics.get("iterations", []) if e.get("task_return") is not None]
@@ -593,7 +597,7 @@ def learned_reward(run: str, rl: RLRun) -> tuple[RewardFn, dict[str, Any]]:
         return (lambda roll: roll.features @ w), {"run": str(run), "kind": record.get("algo"), "weights": w.tolist()}
     adversarial = record.get("adversarial") or {}
     if adversarial.get("kind") == "airl":
-        from demo.rl.adversarial import load_reward
+        from demo.rl.adversarial import load_reward  # deferred: demo.rl.adversarial imports this module
 
         disc, _ = load_reward(run)
         try:

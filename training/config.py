@@ -25,6 +25,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from demo.errors import DemoError
+from demo.policies.observation import ObsSpec
+from demo.store import EpisodeStore
 
 # The generic training-loop settings, where the policy says nothing.
 LOOP_DEFAULTS: dict[str, Any] = {
@@ -239,9 +241,6 @@ def reads_images(data: str | tuple[str, ...] | None, obs_keys: tuple[str, ...] =
         data = data[0]
     if not data:
         return False
-    from demo.store import EpisodeStore
-    from demo.policies.observation import ObsSpec
-
     try:
         with EpisodeStore.open(data) as store:
             return bool(ObsSpec.from_features(store.meta.features, obs_keys or None).images)
@@ -253,7 +252,7 @@ def for_policy(name: str, **given: Any) -> TrainConfig:
     """A resolved :class:`TrainConfig` for policy ``name``: ``given`` values (``None`` = not given) win,
     then the policy's defaults (:data:`IMAGE_DEFAULTS` when the data has cameras the policy reads, over
     BC's :data:`HEAD_DEFAULTS`, over :data:`POLICY_DEFAULTS`), then :data:`LOOP_DEFAULTS`."""
-    from demo.policies.policy import policy_class
+    from demo.policies.policy import policy_class  # deferred: torch stays out of demo --help
 
     policy_class(name)  # an unknown policy fails here, naming the known ones
     given = {k: v for k, v in given.items() if v is not None}

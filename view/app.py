@@ -98,7 +98,7 @@ class Viewer:
         autoplay: bool = True,
         verbose: bool = False,
     ):
-        import viser  # deferred: heavy optional dependency (viser)
+        import viser  # deferred: heavy dependency (viser)
 
         self.store = EpisodeStore.open(store_path)
         if self.store.num_episodes == 0:

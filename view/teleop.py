@@ -75,7 +75,7 @@ class TeleopSession:
     """A live teleoperation page and its simulation. ``close()`` stops both (and saves nothing)."""
 
     def __init__(self, config: TeleopConfig, *, run_thread: bool = True):
-        import viser  # deferred: heavy optional dependency (viser)
+        import viser  # deferred: heavy dependency (viser)
 
         if config.mode not in MODES:
             raise DemoError("--mode", f"unknown mode {config.mode!r} (choose from {', '.join(MODES)})")

@@ -11,7 +11,7 @@ from demo.bench.infer import run as bench_infer
 from demo.experiments.multimodal import classify
 
 
-pytestmark = pytest.mark.usefixtures("torch_one_thread")
+pytestmark = [pytest.mark.usefixtures("torch_one_thread"), pytest.mark.slow]  # trains diffusion runs: ~23 s
 
 
 def test_bench_infer_measures_figure_and_reference_in_one_run() -> None:

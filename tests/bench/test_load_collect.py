@@ -19,6 +19,7 @@ def test_bench_load_small(tmp_path: Path) -> None:
     assert r["ratio_to_reference"] == pytest.approx(r["samples_per_s"] / r["reference_samples_per_s"])
 
 
+@pytest.mark.slow
 def test_bench_collect_cli_writes_json(tmp_path: Path) -> None:
     out = tmp_path / "collect.json"
     assert main(["bench", "collect", "--task", "reach", "--episodes", "4", "--seconds", "0.2", "--rounds", "1",

@@ -14,6 +14,7 @@ TINY = ["--task", "reach", "--episodes", "2", "--seconds", "0.05", "--rounds", "
         "--camera", "wrist@16x8"]
 
 
+@pytest.mark.slow
 def test_bench_render_writes_figure_reference_and_ratio(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "render.json"
     assert main(["bench", "render", *TINY, "--json", str(out)]) == 0

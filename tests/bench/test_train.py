@@ -18,6 +18,7 @@ pytestmark = pytest.mark.usefixtures("torch_one_thread")
 TINY = ["--frames", "1000", "--image-size", "32", "--seconds", "0.2", "--batch-size", "8", "--hidden", "16"]
 
 
+@pytest.mark.slow
 def test_bench_train_images_writes_figure_reference_and_ratio(capfd: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "train", "--images", *TINY, "--device", "cpu", "--json", "-"]) == 0
     out, err = capfd.readouterr()

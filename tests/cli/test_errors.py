@@ -94,6 +94,7 @@ WIDTH_SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("columns", [40, 200])
 def test_one_line_at_any_terminal_width(columns: int, tmp_path: Path) -> None:
     store = make_sample_store(tmp_path / "s.zarr", episodes=2)
@@ -121,6 +122,7 @@ def test_one_line_at_any_terminal_width(columns: int, tmp_path: Path) -> None:
         assert (rc, err) == (code, line + "\n"), argv
 
 
+@pytest.mark.slow
 def test_a_real_write_failure_names_the_output(tmp_path: Path) -> None:
     """A real write past the file-size limit fails with no file name in the OSError: the line names --out."""
     store = make_sample_store(tmp_path / "s.zarr", episodes=3)

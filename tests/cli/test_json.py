@@ -121,7 +121,12 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Inputs:
     return Inputs(tmp_path_factory.mktemp("json"))
 
 
-@pytest.mark.parametrize("command", [*CASES, *SKIPS])
+# The benchmarks that take seconds each, and quickstart (every stage), run in the full suite only.
+SLOW = {"bench infer", "bench faults", "bench collect", "bench render", "bench curate", "quickstart"}
+
+
+@pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW else c
+                                     for c in [*CASES, *SKIPS]])
 def test_json_to_stdout_is_the_only_stdout(command: str, inputs: Inputs, capfd: pytest.CaptureFixture,
                                            torch_one_thread: None) -> None:
     if command in SKIPS:

@@ -18,6 +18,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "demo", *args], capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_help_lists_every_subcommand() -> None:
     out = run_cli("--help")
     assert out.returncode == 0
@@ -30,6 +31,7 @@ def test_version(capsys: pytest.CaptureFixture) -> None:
     assert capsys.readouterr().out.strip() == f"demo {__version__}"
 
 
+@pytest.mark.slow
 def test_usage_error_exits_2() -> None:
     out = run_cli("info")
     assert out.returncode == 2 and out.stderr == "error: STORE: missing argument (see demo info --help)\n"

@@ -10,6 +10,8 @@ import pytest
 from demo.cli.main import main
 from demo.store import EpisodeStore
 
+pytestmark = pytest.mark.slow  # every stage end to end: ~6 s
+
 
 def test_quickstart_runs_every_stage(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "qs"

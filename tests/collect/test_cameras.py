@@ -25,6 +25,7 @@ def stores(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return root / "inline.zarr", root / "two.zarr"
 
 
+@pytest.mark.slow
 def test_two_workers_store_the_same_bytes(stores: tuple[Path, Path]) -> None:
     with EpisodeStore.open(stores[0]) as a, EpisodeStore.open(stores[1]) as b:
         assert a.num_episodes == b.num_episodes == 2
@@ -36,6 +37,7 @@ def test_two_workers_store_the_same_bytes(stores: tuple[Path, Path]) -> None:
             assert np.array_equal(images, b.load([key])[0][key])
 
 
+@pytest.mark.slow
 def test_info_states_bytes_per_frame(stores: tuple[Path, Path], capfd: pytest.CaptureFixture) -> None:
     path = stores[0]
     capfd.readouterr()

@@ -38,6 +38,7 @@ def _write(path: Path, lines: list[str]) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_joint_file_at_100hz_replays_into_successful_demos(human_files: Path, tmp_path: Path) -> None:
     csv = human_files / "JOINTS.csv"
     tracks = parse_joint_csv(csv, JOINTS)

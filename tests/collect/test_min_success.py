@@ -30,6 +30,7 @@ def test_check_success_thresholds() -> None:
         check_success(result(10), min_success=90)
 
 
+@pytest.mark.slow
 def test_cli_min_success_fails_and_keeps_the_episodes(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     # The poor operator profile drops or misses the cube: 0 of these 3 pick episodes succeed.
     argv = ["collect", "--task", "pick", "--operator", "poor", "--episodes", "3", "--seed", "0", "--workers", "0"]

@@ -89,6 +89,7 @@ def _wait_until(predicate, seconds: float) -> bool:
     return predicate()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["vr", "kinesthetic"])
 def test_websocket_client_moves_the_ee_to_the_gizmo_and_records(tmp_path: Path, mode: str) -> None:
     out = tmp_path / "teleop.zarr"

@@ -49,6 +49,7 @@ def _write(path: Path, lines: list[str]) -> Path:
 
 
 # ------------------------------------------------------------------------------ the headline
+@pytest.mark.slow
 def test_synthetic_pose_file_retargets_into_successful_demos(human_files: Path, tmp_path: Path) -> None:
     out = tmp_path / "vr.zarr"
     result = collect_vr("pick", human_files / "POSES.jsonl", out, scale=1 / TrackerFrame().scale, operator="tester")
@@ -76,6 +77,7 @@ def test_synthetic_pose_file_retargets_into_successful_demos(human_files: Path, 
     store.close()
 
 
+@pytest.mark.slow
 def test_calibration_file_maps_absolute_poses(human_files: Path, tmp_path: Path) -> None:
     """With the exact CALIB.json the hand maps onto the recorded EE path (no first-pose alignment)."""
     tracks = parse_poses(human_files / "POSES.jsonl")[:3]
@@ -116,6 +118,7 @@ def test_bad_lines_name_file_and_line_and_write_nothing(tmp_path: Path, bad_line
     assert not out.exists()  # parsed before the store is created
 
 
+@pytest.mark.slow
 def test_bad_file_leaves_existing_store_untouched(human_files: Path, tmp_path: Path) -> None:
     good = _write(tmp_path / "good.jsonl", ['{"episode_seed": 11}', *[_pose(i / 30) for i in range(10)]])
     out = tmp_path / "s.zarr"

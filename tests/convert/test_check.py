@@ -13,6 +13,8 @@ from demo.convert.convert import ConvertOptions
 from demo.errors import DemoError
 from demo.store import EpisodeStore
 
+pytestmark = pytest.mark.slow  # collects and replays pick episodes: ~8 s
+
 
 @pytest.fixture(scope="module")
 def pick(tmp_path_factory: pytest.TempPathFactory) -> Path:

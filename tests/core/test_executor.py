@@ -21,6 +21,8 @@ from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.store import EpisodeStore
 
+pytestmark = pytest.mark.slow  # Ray and process pools start per test: ~145 s in all
+
 REACH = {"pos_tol": 0.04, "rot_tol": 0.4}  # as the other reach tests: a seconds-long BC run shows
 RAY2 = ExecutorConfig("ray", 2)
 

@@ -10,6 +10,8 @@ import pytest
 from demo.bench.curate import run
 from demo.cli.main import main
 
+pytestmark = pytest.mark.slow  # the curate benchmark twice: ~14 s
+
 
 def test_bench_small_store(tmp_path: Path) -> None:
     r = run(frames=20_000, episode_s=5.0, repeats=1, workdir=tmp_path)

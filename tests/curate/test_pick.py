@@ -11,6 +11,8 @@ import pytest
 from demo.curate.curate import analyse
 from demo.store import EpisodeStore
 
+pytestmark = pytest.mark.slow  # collects pick episodes: ~9 s
+
 pytest.importorskip("mujoco")
 
 

@@ -37,6 +37,7 @@ def test_operator_rows(mixed: Path) -> None:
     assert rows["good"]["dropped_for"].get("failed") == 1
 
 
+@pytest.mark.slow
 def test_cli_writes_store_json_and_png(mixed: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out, rep, png = tmp_path / "out.zarr", tmp_path / "report.json", tmp_path / "signals.png"
     rc = main(["curate", str(mixed), "--out", str(out), "--json", str(rep), "--plot", str(png), "--show", "all"])

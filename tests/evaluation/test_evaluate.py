@@ -32,6 +32,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return {"data": tmp / "reach.zarr", "bc": tmp / "bc", "untrained": tmp / "untrained", "tmp": tmp}
 
 
+@pytest.mark.slow
 def test_short_bc_run_beats_an_untrained_policy_on_reach(runs: dict[str, Path]) -> None:
     trained = evaluate(EvalConfig(run=str(runs["bc"]), episodes=12, seed=0))
     untrained = evaluate(EvalConfig(run=str(runs["untrained"]), episodes=12, seed=0))
@@ -40,6 +41,7 @@ def test_short_bc_run_beats_an_untrained_policy_on_reach(runs: dict[str, Path]) 
     assert untrained["failures"].get("timeout", 0) >= 1
 
 
+@pytest.mark.slow
 def test_eval_is_deterministic_and_independent_of_workers(runs: dict[str, Path]) -> None:
     one = evaluate(EvalConfig(run=str(runs["bc"]), episodes=4, seed=5))
     again = evaluate(EvalConfig(run=str(runs["bc"]), episodes=4, seed=5))
@@ -49,12 +51,14 @@ def test_eval_is_deterministic_and_independent_of_workers(runs: dict[str, Path])
     assert [e["seed"] for e in other["episodes_detail"]] != [e["seed"] for e in one["episodes_detail"]]
 
 
+@pytest.mark.slow
 def test_eval_reports_no_seeds_shared_with_the_training_data(runs: dict[str, Path]) -> None:
     # The streams themselves are disjoint (tests/core/test_seeds.py); eval also checks the run's own data.
     result = evaluate(EvalConfig(run=str(runs["bc"]), episodes=3, seed=0))
     assert result["seeds_shared_with_training_data"] == 0
 
 
+@pytest.mark.slow
 def test_other_task_or_options_are_refused(runs: dict[str, Path]) -> None:
     with pytest.raises(DemoError, match="trained on task 'reach'; it cannot be evaluated on 'pick'"):
         evaluate(EvalConfig(run=str(runs["bc"]), task="pick", episodes=1))
@@ -71,6 +75,7 @@ def test_other_task_or_options_are_refused(runs: dict[str, Path]) -> None:
         evaluate(EvalConfig(run=str(other), episodes=1))
 
 
+@pytest.mark.slow
 def test_cli_eval_json_and_video(runs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "eval.json"
     rc = main(["eval", str(runs["bc"]), "--episodes", "2", "--seed", "1", "--json", str(out),

@@ -33,6 +33,7 @@ def run(tmp_path_factory: pytest.TempPathFactory, reach_demos) -> Path:
     return tmp / "bc"
 
 
+@pytest.mark.slow
 def test_record_writes_every_rollout_in_order_whatever_the_workers(run: Path, tmp_path: Path) -> None:
     one = evaluate(EvalConfig(run=str(run), episodes=4, seed=3, record=str(tmp_path / "one.zarr")))
     evaluate(EvalConfig(run=str(run), episodes=4, seed=3, workers=2, record=str(tmp_path / "two.zarr")))

@@ -21,6 +21,7 @@ from demo.policies.checkpoint import load_bundle, read_run
 torch.set_num_threads(1)
 
 
+@pytest.mark.slow
 def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
     config = CompoundingConfig(out=str(tmp_path), values=(1,), demos=3, pool=6, rounds=1, episodes_per_round=1,
                                steps=30, round_steps=20, hidden=(16,), batch_size=32, chunk=4, eval_episodes=2,
@@ -66,6 +67,7 @@ def test_miniature_run_matches_label_budgets(tmp_path: Path, capfd) -> None:
         run(dataclasses.replace(config, hidden=(32,)), log=lambda text: None)
 
 
+@pytest.mark.slow
 def test_a_fixed_label_budget_stops_hg_dagger_and_is_part_of_the_cache(tmp_path: Path) -> None:
     config = CompoundingConfig(out=str(tmp_path), values=(1,), demos=3, pool=6, rounds=4, episodes_per_round=2,
                                steps=30, round_steps=20, hidden=(16,), batch_size=32, eval_episodes=2, val_fraction=0.34,

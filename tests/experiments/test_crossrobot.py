@@ -12,8 +12,11 @@ import pytest
 from demo.cli.main import main
 from demo.training.data import ROBOT_AGNOSTIC_KEYS
 
-pytestmark = pytest.mark.skipif(importlib.util.find_spec("robosuite") is None,
-                                reason="the UR5e's model files come from robosuite (pip install --no-deps robosuite==1.5.2)")
+pytestmark = [
+    pytest.mark.skipif(importlib.util.find_spec("robosuite") is None,
+                       reason="the UR5e's model files come from robosuite (pip install --no-deps robosuite==1.5.2)"),
+    pytest.mark.slow,  # two arms, five policies, eight evaluations (~14 s in miniature)
+]
 
 
 def test_crossrobot_at_toy_size(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:

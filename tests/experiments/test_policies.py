@@ -9,7 +9,7 @@ import pytest
 
 from demo.errors import DemoError
 
-pytestmark = pytest.mark.usefixtures("torch_one_thread")
+pytestmark = [pytest.mark.usefixtures("torch_one_thread"), pytest.mark.slow]  # one policy per class: ~22 s
 
 
 def test_bench_policies_tiny_end_to_end(tmp_path, capfd) -> None:

@@ -1,5 +1,7 @@
 """The fuzz suite's corruptions: every kind of file `demo` reads, broken in seeded ways.
 
+One file of ~720 lines on purpose: it is the catalogue, a section per kind of input, read as a table.
+
 A *source* is a pristine input of one kind (a store, a robot TOML, a VR pose file, a kinesthetic
 CSV, a run directory, a LeRobot folder, a robomimic HDF5 file) with the commands that read it. A
 *corruption* changes a copy of it: bytes (truncation, bit flips, garbage, an empty file), values

@@ -56,7 +56,9 @@ def test_every_corruption_runs_in_ci() -> None:
         {(s.name, c.name) for s, c in fc.pairs()}
 
 
-@pytest.mark.parametrize("case", fc.cases(CASES, SEED), ids=lambda c: c.id)
+# The first pass tries every corruption once; the repeats (other seeds and commands) are slow.
+@pytest.mark.parametrize("case", [c if c.index < len(fc.pairs()) else pytest.param(c, marks=pytest.mark.slow)
+                                  for c in fc.cases(CASES, SEED)], ids=lambda c: c.id)
 def test_corruption(case: fc.Case, sources: dict[str, Path], tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     outcome = fc.run_case(case, sources, tmp_path, main, lambda: tuple(capfd.readouterr()))
     found = fc.problems(case, outcome)

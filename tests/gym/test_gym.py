@@ -55,7 +55,7 @@ def test_check_env_state(task: str) -> None:
     checked(demo.gym.ENV_IDS[task])
 
 
-@pytest.mark.parametrize("task", TASK_NAMES)
+@pytest.mark.parametrize("task", [t if t == "reach" else pytest.param(t, marks=pytest.mark.slow) for t in TASK_NAMES])
 def test_check_env_cameras(task: str) -> None:
     checked(demo.gym.ENV_IDS[task], cameras=CAMERAS)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from demo.sim import make_env
@@ -46,6 +47,7 @@ def test_cost_to_go_is_the_experts_rollout_cost_from_the_saved_state() -> None:
     assert cost_to_go(env, late, None, seed, failure_cost=1000.0) == (1002.0, 2)
 
 
+@pytest.mark.slow
 def test_aggrevate_labels_are_the_cheapest_candidate(reach_demos, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(reach_demos(8)), out=str(tmp_path / "run"), steps=100, batch_size=64,
                      policy={"hidden": (32, 32)}, val_fraction=0.25, log_every=50, val_every=50)

@@ -32,6 +32,7 @@ def dagger(demos: Path, out: Path, **kw) -> dict:
     return train_dagger(config)
 
 
+@pytest.mark.slow
 def test_dagger_aggregates_expert_labelled_states(demos: Path, tmp_path: Path) -> None:
     summary = dagger(demos, tmp_path / "run")
     store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
@@ -66,6 +67,7 @@ def test_dagger_aggregates_expert_labelled_states(demos: Path, tmp_path: Path) -
     assert (tmp_path / "run" / "policy.safetensors").exists() and (tmp_path / "run" / "curves.png").exists()
 
 
+@pytest.mark.slow
 def test_beta_one_executes_the_expert(demos: Path, tmp_path: Path) -> None:
     dagger(demos, tmp_path / "run", beta="linear:1000000")
     store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
@@ -74,6 +76,7 @@ def test_beta_one_executes_the_expert(demos: Path, tmp_path: Path) -> None:
         assert np.allclose(ep["info.executed_action"], ep["action"])
 
 
+@pytest.mark.slow
 def test_hg_dagger_labels_only_interventions(demos: Path, tmp_path: Path) -> None:
     summary = dagger(demos, tmp_path / "run", gate="deviation:0.06")
     store = EpisodeStore.open(tmp_path / "run" / "data.zarr")
@@ -101,6 +104,7 @@ def test_bad_schedules_and_tasks_fail_clearly(demos: Path, tmp_path: Path) -> No
         dagger(demos, tmp_path / "c", task="pick")
 
 
+@pytest.mark.slow
 def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tmp_path: Path) -> None:
     """An early learner's flailing rollouts must not stretch the input ranges the states that matter live in."""
     from demo.policies.checkpoint import load_bundle
@@ -146,6 +150,7 @@ def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
     assert flags.all() and info["labels"] == len(flags)
 
 
+@pytest.mark.slow
 def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) -> None:
     """A resumed run needs only its directory: the source store may be gone."""
     import shutil

@@ -46,6 +46,7 @@ def test_noise_is_the_learners_error_covariance_on_expert_data(demos: Path, tmp_
     assert cov.shape == (7, 7) and np.all(np.linalg.eigvalsh(cov) >= -1e-12) and np.trace(cov) > 0
 
 
+@pytest.mark.slow
 def test_dart_collects_with_the_estimated_noise(demos: Path, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=80, batch_size=64, policy={"hidden": (32,)},
                      val_fraction=0.25, log_every=40, val_every=40)
@@ -73,6 +74,7 @@ def test_dart_collects_with_the_estimated_noise(demos: Path, tmp_path: Path) -> 
     np.testing.assert_allclose(scaled / np.trace(scaled), cov / np.trace(cov), rtol=1e-5, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_a_label_budget_stops_the_rollouts(demos: Path, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=20, batch_size=32, policy={"hidden": (16,)},
                      val_fraction=0.25)

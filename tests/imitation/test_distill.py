@@ -33,6 +33,7 @@ def teacher(tmp_path_factory, torch_one_thread):
     return data, run
 
 
+@pytest.mark.slow
 def test_student_approaches_the_teacher_and_is_a_one_step_run(teacher, tmp_path) -> None:
     from demo.policies import checkpoint as ckpt
     from demo.training.config import TrainConfig
@@ -69,6 +70,7 @@ def test_student_approaches_the_teacher_and_is_a_one_step_run(teacher, tmp_path)
     assert torch.allclose(sampled, student_step(student.policy, obs, x_T).detach().clamp(-1, 1), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_student_evaluates_and_times_through_the_cli(teacher, tmp_path, capfd) -> None:
     from demo.cli.main import main
 

@@ -53,6 +53,7 @@ def demos(reach_demos) -> Path:
     return reach_demos(10)
 
 
+@pytest.mark.slow
 def test_safedagger_takes_over_where_the_classifier_fires(demos: Path, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(demos), out=str(tmp_path / "run"), steps=150, batch_size=64, policy={"hidden": (64, 64)},
                      val_fraction=0.3, log_every=50, val_every=50)
@@ -80,6 +81,7 @@ def test_safedagger_takes_over_where_the_classifier_fires(demos: Path, tmp_path:
     assert entry["labels_round"] == labels and entry["takeovers"] == int(store.column("takeovers")[-2:].sum())
 
 
+@pytest.mark.slow
 def test_safedagger_needs_a_threshold_and_held_out_episodes(demos: Path, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(demos), out=str(tmp_path / "a"), steps=20, batch_size=32, policy={"hidden": (16,)})
     with pytest.raises(DemoError, match="--gate"):

@@ -1,6 +1,9 @@
 """LeRobot v3.0 export/import: the folder validates against the v3.0 layout, round trips are bit-exact
 (camera videos: within a stated pixel error), foreign datasets import, bad input fails with one line
-naming the file."""
+naming the file.
+
+One file of ~580 lines on purpose: the tests of one format both ways share its fixtures (stores with and
+without cameras, exported folders, a foreign dataset)."""
 
 from __future__ import annotations
 
@@ -487,6 +490,7 @@ def test_video_round_trip_within_the_measured_error(cameras: Path, tmp_path: Pat
         assert mean < MEAN_BOUND and peak <= MAX_BOUND
 
 
+@pytest.mark.slow
 def test_video_files_roll_over_and_subsets_import(cameras: Path, tmp_path: Path) -> None:
     report = export_lerobot(cameras, tmp_path / "lr", video_file_mb=1e-6, episodes=[0, 2, 3])
     info = validate_v30(tmp_path / "lr")
@@ -516,6 +520,7 @@ def test_foreign_video_dataset_imports_without_a_reference(cameras: Path, tmp_pa
     assert image_error(EpisodeStore.open(cameras), store, "obs.image_front")[0] < MEAN_BOUND
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["truncated", "garbage", "fewer_frames", "wrong_size", "missing", "timestamp"])
 def test_bad_video_one_line_error(case: str, cameras: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     root = tmp_path / "lr"

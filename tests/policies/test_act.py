@@ -103,6 +103,7 @@ def test_training_lowers_the_loss_and_inference_is_deterministic() -> None:
     assert not torch.equal(c, policy.predict(obs, torch.Generator().manual_seed(2)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kl_weight", [0.01, 10.0])
 def test_a_light_kl_lets_the_latent_carry_the_mode(kl_weight: float) -> None:
     """A bimodal target: from one observation the chunk is all +0.6 or all -0.6, half each. With the
@@ -154,6 +155,7 @@ def test_train_and_eval_from_the_command_line(avoid_store: Path, tmp_path: Path,
     assert result["episodes"] == 2 and result["algo"] == "act"
 
 
+@pytest.mark.slow
 def test_act_behind_image_encoders(tmp_path: Path) -> None:
     from demo.collect.scripted import CollectConfig, collect_scripted
     from demo.policies import checkpoint as ckpt

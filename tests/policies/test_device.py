@@ -98,6 +98,7 @@ def test_demo_train_and_bench_on_cuda(image_store: Path, tmp_path: Path) -> None
     assert r["device"].startswith("cuda") and r["autocast"] == "bfloat16" and r["samples_per_s"] > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=needs_cuda)])
 def test_bench_infer_on_the_device(device: str, tmp_path: Path) -> None:
     out = tmp_path / "infer.json"

@@ -61,7 +61,7 @@ def tiny_diffusion(denoiser: str = "unet", **options) -> DiffusionPolicy:
     return build_policy("diffusion", PolicySpec(2, 2, 1, H), {**TINY[denoiser], **options})
 
 
-@pytest.fixture(scope="module", params=["unet", "mlp"])
+@pytest.fixture(scope="module", params=[pytest.param("unet", marks=pytest.mark.slow), "mlp"])  # unet: 16 s to fit
 def trained(request) -> DiffusionPolicy:
     return fit(tiny_diffusion(request.param), 300)
 
@@ -76,6 +76,7 @@ def test_diffusion_recovers_both_modes(trained: DiffusionPolicy, sampler: str, s
     assert 0.3 < float(up.float().mean()) < 0.7, "and both modes are sampled"
 
 
+@pytest.mark.slow
 def test_sample_prediction_is_why_few_step_ddim_works() -> None:
     """The default prediction="sample": after a short training, epsilon prediction's x0 estimate at
     t = 99 (eps error amplified ~2000x) leaves 4-step DDIM chunks far off the modes; x0 does not."""

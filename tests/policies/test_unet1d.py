@@ -50,6 +50,7 @@ def test_film_split_is_exact() -> None:
     assert torch.allclose(net.denoise(x, full), net(x, t, obs), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_it_learns_a_conditional_mapping() -> None:
     """A few hundred steps of regression: the FiLM path must carry the observation to the output."""
     net = small_net(action_dim=2, cond_dim=1, channels=(16, 32)).train()

@@ -34,6 +34,7 @@ def tiny(store: Path, out: Path, **changes) -> TrainConfig:
     return TrainConfig(**{**base, **changes})
 
 
+@pytest.mark.slow
 def test_bc_trains_on_images_and_proprioception_and_runs_in_the_simulator(store: Path, tmp_path: Path) -> None:
     summary = train(tiny(store, tmp_path / "run"))
     assert np.isfinite(summary["train_loss"])
@@ -73,6 +74,7 @@ def test_one_camera_and_object_state_on_request(store: Path, tmp_path: Path) -> 
         train(tiny(store, tmp_path / "bad", encoder={"backbone": "vgg"}))
 
 
+@pytest.mark.slow
 def test_diffusion_trains_on_images(store: Path, tmp_path: Path) -> None:
     summary = train(tiny(store, tmp_path / "run", algo="diffusion", steps=10, n_obs=2, chunk=8, execute=4,
                          policy={"width": 32, "depth": 1}))
@@ -81,6 +83,7 @@ def test_diffusion_trains_on_images(store: Path, tmp_path: Path) -> None:
     assert result["episodes"] == 1
 
 
+@pytest.mark.slow
 def test_pixel_dagger_labels_the_states_the_pixel_policy_visits(store: Path, tmp_path: Path) -> None:
     config = DaggerConfig(train=tiny(store, tmp_path / "run", chunk=1), rounds=1, episodes_per_round=1, round_steps=5)
     summary = train_dagger(config)

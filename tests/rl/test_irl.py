@@ -230,6 +230,7 @@ def test_demonstrations_weigh_the_held_goal_for_the_rest_of_the_horizon(reach_st
     assert expert.features[expert.episode == 0][-1, 2] == 1.0  # the demonstration ends in success
 
 
+@pytest.mark.slow
 def test_airl_run_evaluates(airl_run: tuple[Path, dict]) -> None:
     from demo.cli.main import main
 
@@ -242,6 +243,7 @@ def test_airl_run_evaluates(airl_run: tuple[Path, dict]) -> None:
     assert main(["eval", str(out), "--episodes", "2"]) == 0
 
 
+@pytest.mark.slow
 def test_maxent_run_reports_weights(maxent_run: tuple[Path, dict]) -> None:
     out, summary = maxent_run
     assert summary["features"] == ["pos_err", "rot_err", "success"] and summary["env_steps"] == 100
@@ -269,6 +271,7 @@ def test_gail_from_bc(inputs: str, reward: str, reach_store: Path, tmp_path: Pat
     assert disc.norm.mean.shape == (3 + 6,)  # a position difference and a relative rotation in 6D
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("source, robot", [
     ("maxent", None),
     pytest.param("airl", "robosuite_ur5e.toml", marks=pytest.mark.skipif(

@@ -163,6 +163,7 @@ def test_sigkill_mid_episode_keeps_finished_episodes(tmp_path: Path, capsys: pyt
     np.testing.assert_array_equal(store.read_episode(7)["action"], random_episode(100)["action"])
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_times(tmp_path: Path) -> None:
     for delay in (0.9, 1.3, 1.7):
         target = tmp_path / f"run{delay}"

@@ -89,6 +89,7 @@ def info(capsys: pytest.CaptureFixture, store: str) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.mark.slow
 def test_collect_to_s3_is_the_local_store_byte_for_byte(s3: Any, tmp_path: Path,
                                                         capsys: pytest.CaptureFixture) -> None:
     assert main([*COLLECT, "--out", url("reach.zarr")]) == 0
@@ -122,6 +123,7 @@ def committed(fs: Any, name: str) -> int:
         return 0
 
 
+@pytest.mark.slow
 def test_collect_killed_midway_keeps_every_finished_episode(s3: Any, tmp_path: Path,
                                                              capsys: pytest.CaptureFixture) -> None:
     # `demo collect`'s library call in a second process (without the CLI's imports: torch)
@@ -158,6 +160,7 @@ def episode(i: int) -> dict[str, np.ndarray]:
     return {"obs.x": np.full((5, 2), i, np.float32), "obs.image_c": image, "action": np.full((5, 1), i, np.float32)}
 
 
+@pytest.mark.slow
 def test_one_writer_and_all_or_nothing_copies(s3: Any, tmp_path: Path) -> None:
     with EpisodeStore.create(url("lock.zarr"), small_meta()) as store:
         assert not s3.exists(f"{BUCKET}/lock.zarr/episodes.parquet")  # not yet a store

@@ -13,6 +13,8 @@ import pytest
 from demo.cli.main import main
 from demo.collect.scripted import CollectConfig, collect_scripted
 
+pytestmark = pytest.mark.slow  # torchrun processes: ~60 s in all
+
 ARGS = ["--steps", "300", "--batch-size", "32", "--chunk", "2", "--policy-opt", "hidden=32,32"]  # loss every 100 steps
 
 

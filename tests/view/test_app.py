@@ -267,6 +267,7 @@ def test_page_renders_in_headless_chromium(toy: tuple[Path, Path]) -> None:
     assert coloured_pixels(png) > 300, "the 3D scene shows no geoms"
 
 
+@pytest.mark.slow
 def test_cli_stops_cleanly_on_ctrl_c(toy: tuple[Path, Path]) -> None:
     path, xml = toy
     proc = subprocess.Popen(
