@@ -8,7 +8,8 @@ import typer
 from rich.text import Text
 
 from demo.cli.main import app
-from demo.cli.options import address_option, executor_option, json_option, overwrite_option, robot_option
+from demo.cli.options import (address_option, env_opt_option, env_option, executor_option, json_option, overwrite_option,
+                              parse_env_opts, robot_option)
 from demo.cli.output import err_console, kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.collect.kinesthetic import collect_kinesthetic
@@ -16,6 +17,7 @@ from demo.collect.scripted import CollectConfig, check_success, collect_scripted
 from demo.collect.vr import collect_vr
 from demo.errors import DemoError
 from demo.executor import ExecutorConfig
+from demo.sim.foreign import task_name
 from demo.sim.render import parse_camera
 
 SOURCES = ("scripted", "kinesthetic", "vr")
@@ -31,6 +33,11 @@ def collect(
                                                                        "(s3://bucket/pick.zarr)."),
     source: str = typer.Option("scripted", help=f"Where demonstrations come from: {', '.join(SOURCES)}."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
+    env: str = env_option(),
+    env_opt: list[str] = env_opt_option(),
+    expert: str = typer.Option(None, metavar="module:callable", help="--env: the expert, called as callable(obs, env) "
+                               "-> action each step (or callable(env) -> an object with act(obs), per episode); "
+                               "demo: the scripted expert of a demo/<Task>-v0 environment.", show_default="none"),
     episodes: int = typer.Option(50, help="Number of episodes (scripted; human sources record every input episode)."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states (and of all noise)."),
     workers: int = typer.Option(1, help="Simulation processes (or Ray actors) feeding this (writer) process; 0 = all in "
@@ -74,12 +81,17 @@ def collect(
                                         "--noise do not apply")
         if min_success is not None:
             raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
+    if env is not None and source != "scripted":
+        raise DemoError("--env", "collects from an environment's expert (--source scripted)")
+    if (expert is not None or env_opt) and env is None:
+        raise DemoError("--expert" if expert is not None else "--env-opt", "applies to a Gymnasium environment (--env)")
     robot_config = str(robot) if robot else None
-    options = task_options(blocks)
+    options = parse_env_opts(env_opt) if env is not None else task_options(blocks)
+    task = task_name(env) if env is not None else task
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
-                                   robot=robot_config, task_options=options, cameras=cameras)
+                                   robot=robot_config, task_options=options, cameras=cameras, expert=expert)
             result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
                                       overwrite=overwrite, progress=progress)
         else:

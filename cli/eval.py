@@ -8,7 +8,10 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.options import address_option, device_option, executor_option, json_option, robot_option, run_argument
+from demo.cli.options import (address_option, device_option, env_opt_option, env_option, executor_option, json_option,
+                              parse_env_opts, robot_option, run_argument)
+from demo.errors import DemoError
+from demo.sim.foreign import task_name
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 
@@ -19,6 +22,8 @@ def eval_(
     task: str = typer.Option(None, help="Task (only the one the policy was trained on is allowed).",
                              show_default="the trained task"),
     blocks: int = typer.Option(None, help="stack: number of cubes (must match training).", show_default="the trained one"),
+    env: str = env_option(),
+    env_opt: list[str] = env_opt_option(),
     robot: str = robot_option("Robot to evaluate on: the name of one the run was trained on, or a robot config TOML "
                               "(another arm only for an end-effector-space policy, e.g. ee7, through that arm's IK).",
                               "the (first) trained robot"),
@@ -46,8 +51,13 @@ def eval_(
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
     from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
 
+    if env is not None and (task is not None or blocks is not None):
+        raise DemoError("--env", "names the environment to evaluate on: --task and --blocks do not apply")
+    if env_opt and env is None:
+        raise DemoError("--env-opt", "sets an option of --env")
+    options = parse_env_opts(env_opt) if env is not None else None if blocks is None else {"blocks": blocks}
     config = EvalConfig(
-        run=str(run), task=task, task_options=None if blocks is None else {"blocks": blocks},
+        run=str(run), task=task_name(env) if env is not None else task, task_options=options,
         robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,
         execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
         record=record,
@@ -59,7 +69,8 @@ def eval_(
     rows = [
         ("run", result["run"]),
         ("task", f"{result['task']} {result['task_options'] or ''}".strip()),
-        ("robot", result["robot"] + ("" if result["robot_trained_on"] else " (not trained on: " + result["robot_note"] + ")")),
+        ("robot", "the environment's own" if result["robot"] is None else result["robot"] +
+         ("" if result["robot_trained_on"] else " (not trained on: " + result["robot_note"] + ")")),
         ("episodes", result["episodes"]),
         ("success", f"{result['successes']}/{result['episodes']} = {result['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%})"),
         ("mean length (steps)", f"{result['mean_length']:.1f}"),

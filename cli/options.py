@@ -7,9 +7,12 @@ Each function returns a fresh typer parameter (typer needs one object per use) s
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import typer
+
+from demo.errors import DemoError
 
 STORE = "STORE"
 RUN = "RUN"
@@ -65,3 +68,28 @@ def address_option() -> Any:
     return typer.Option(None, "--address", metavar="ADDR",
                         help="--executor ray: the Ray cluster to run on (e.g. auto, ray://HOST:10001).",
                         show_default="a local Ray with --workers CPUs")
+
+
+def env_option() -> Any:
+    return typer.Option(None, "--env", metavar="ENV", help="A Gymnasium environment: a registered id (CartPole-v1), "
+                        "module:id (imports the module that registers it) or module:factory.", show_default="none")
+
+
+def env_opt_option() -> Any:
+    return typer.Option([], "--env-opt", metavar="KEY=VALUE", help="--env: a keyword argument of the environment "
+                        "(repeatable; VALUE read as JSON where it parses, else as text); max_episode_steps=N sets the "
+                        "horizon of one that has none.", show_default="none")
+
+
+def parse_env_opts(items: list[str]) -> dict[str, Any]:
+    """``--env-opt KEY=VALUE`` items as keyword arguments (a value that parses as JSON is that value)."""
+    opts: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise DemoError("--env-opt", f"{item!r} is not KEY=VALUE (e.g. max_episode_steps=200)")
+        try:
+            opts[key.strip()] = json.loads(text)
+        except json.JSONDecodeError:
+            opts[key.strip()] = text
+    return opts

@@ -30,12 +30,14 @@ from typing import Any
 
 import numpy as np
 
+from demo.collect.foreign import foreign_episode
 from demo.collect.operators import Operator, get_profile
 from demo.errors import DemoError
 from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import episode_seed
 from demo.sim import load_robot, make_env
+from demo.sim.foreign import is_foreign
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
@@ -55,9 +57,13 @@ class CollectConfig:
     task_options: dict[str, Any] = field(default_factory=dict)
     cameras: tuple[tuple[str, int, int], ...] = ()
     first_episode: int = 0  # index of the first episode in the seed sequence (to extend a run)
+    # A Gymnasium environment's expert (task env:<name>, demo.collect.foreign): module:callable or a named one
+    expert: str | None = None
 
 
 def make_env_for(config: CollectConfig) -> Any:
+    if is_foreign(config.task):  # it brings its own robot and cameras
+        return make_env(config.task, **config.task_options)
     return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
 
 
@@ -87,6 +93,8 @@ def hold_action(env: Any) -> np.ndarray:
 def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Run one scripted episode: expert, optionally through an operator profile and DART noise."""
     seed = start_seed(config, index)
+    if is_foreign(config.task):
+        return foreign_episode(env, config.expert or "", seed, config.noise)
     rng = np.random.default_rng([seed, 1])
     profile = get_profile(config.operator)
     n_arm = len(env.robot.arm_joints)
@@ -184,7 +192,9 @@ def store_meta(config: CollectConfig, env: Any) -> StoreMeta:
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
-    return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items() if k != "episodes"}
+    # "expert" only where there is one (a Gymnasium environment's): the tasks' provenance reads as before
+    return {k: (list(map(list, v)) if k == "cameras" else v) for k, v in d.items()
+            if k != "episodes" and not (k == "expert" and v is None)}
 
 
 @dataclass
@@ -253,6 +263,12 @@ def collect_scripted(
         raise DemoError("--episodes", "must be at least 1")
     if config.noise < 0:
         raise DemoError("--noise", "must be >= 0")
+    if is_foreign(config.task) != (config.expert is not None):
+        raise DemoError("--expert", "names the expert of a Gymnasium environment (--env); the tasks bring their own"
+                        if config.expert is not None else "a Gymnasium environment (--env) needs --expert")
+    if is_foreign(config.task) and (config.operator != "expert" or config.robot or config.cameras):
+        raise DemoError("--env", "a Gymnasium environment records its own expert, robot and cameras: --operator, "
+                                 "--robot and --camera do not apply")
     executor = executor or ExecutorConfig("process", workers)
     executor.check()
     get_profile(config.operator)

@@ -54,6 +54,7 @@ from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, eval_seeds
 from demo.sim import make_env
 from demo.sim.robot_record import resolve_robot
+from demo.sim.foreign import is_foreign
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.output import open_output
 from demo.policies.actions import make_action_adapter
@@ -119,8 +120,11 @@ def resolve_target(
     task = task or trained_task
     if not task:
         raise DemoError(where, "records no task; pass --task")
-    if trained_task and task != trained_task:
+    foreign = is_foreign(task) and is_foreign(trained_task)  # another Gymnasium env with the same spaces may judge it
+    if trained_task and task != trained_task and not foreign:
         raise DemoError(where, f"was trained on task {trained_task!r}; it cannot be evaluated on {task!r}")
+    if foreign:  # a Gymnasium environment brings its own robot; its options are its own
+        return task, trained_options if task_options is None else dict(task_options), None
     options = trained_options if task_options is None else {**trained_options, **task_options}
     if trained_task and options != trained_options:
         raise DemoError(
@@ -160,7 +164,16 @@ def robot_transfer(bundle: PolicyBundle, robot: str) -> str | None:
 
 def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: Any, cameras: Sequence[Any] = ()) -> Any:
     """The task's environment for ``bundle`` on ``robot`` (a ``RobotConfig``), rendering the cameras its
-    policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`)."""
+    policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`).
+    A Gymnasium environment (``env:...``) is rebuilt from its name and options alone."""
+    if is_foreign(task):
+        env = make_env(task, **options)
+        try:
+            bundle.obs_spec.check_against(env.features, f"{task} environment")
+        except DemoError:
+            env.close()
+            raise
+        return env
     env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
     try:
         new = robot_transfer(bundle, env.robot.name)
@@ -321,6 +334,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     executor = executor.on_device(device)
     bundle = load_bundle(run, device)
     task, options, robot = resolve_target(bundle, config.task, config.task_options, config.robot)
+    if config.video and is_foreign(task):
+        raise DemoError("--video", "replays the simulator's recorded states; a Gymnasium environment's episodes have none")
     execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
     seeds = eval_seeds(config.seed, config.episodes)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
@@ -341,7 +356,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
 
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
-    robot_name, transfer = env.robot.name, robot_transfer(bundle, env.robot.name)
+    robot_name = env.robot.name if env.robot is not None else None  # a Gymnasium environment has none of ours
+    transfer = robot_transfer(bundle, robot_name) if robot_name is not None else None
     stack = ExitStack()  # an exception leaves the recorded episodes committed (a store created here and left empty goes)
     try:
         if config.record is not None:

@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
+from demo.sim.foreign import ENV_PREFIX, ForeignEnv, is_foreign
 from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
 from demo.sim.numeric import clip
@@ -419,6 +420,11 @@ def make_env(
     ``top``, ``wrist``; images are ``obs.image_<name>`` uint8 [height, width, 3]. Headless rendering
     uses EGL (``demo.sim`` sets ``MUJOCO_GL=egl`` when unset).
     """
+    if is_foreign(task):  # any Gymnasium environment (demo.sim.foreign): it brings its own robot and cameras
+        if robot is not None or cameras:
+            raise DemoError(f"--env {task.removeprefix(ENV_PREFIX)}", "a Gymnasium environment brings its own robot and "
+                                                                     "cameras: --robot and --camera do not apply")
+        return ForeignEnv(task, **task_options)
     if task not in TASKS:
-        raise DemoError(task, f"unknown task (known: {', '.join(TASKS)})")
+        raise DemoError(task, f"unknown task (known: {', '.join(TASKS)}; any Gymnasium environment: env:ID)")
     return Env(TASKS[task](**task_options), load_robot(robot), cameras)

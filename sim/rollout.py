@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from demo.sim.env import Env
+from demo.sim.foreign import ForeignEnv
 from demo.sim.robot_record import robot_record
 from demo.store import FeatureSpec, StoreMeta
 
@@ -117,6 +118,8 @@ def rollout(
         env.reset(seed)
     horizon = max_steps or env.horizon
     hold = SuccessHold(hold_success_s, env.fps)
+    # A Gymnasium environment's episode also ends where it says so (demo.sim.foreign); the tasks' end by the rule above.
+    ends_episodes = getattr(env, "ends_episodes", False)
     # Each step's frame (a fresh dict from env.frame) and command, stacked key by key at the end.
     steps: list[tuple[dict[str, np.ndarray], StepCommand]] = []
     frame = env.frame()
@@ -124,9 +127,9 @@ def rollout(
         command = actor(env, frame, t)
         if record:
             steps.append((frame, command))
-        obs, _, success, _, _ = env.step(command.executed)
+        obs, _, success, ended, _ = env.step(command.executed)
         frame = env.frame(obs)
-        if hold.update(success):
+        if hold.update(success) or (ended and ends_episodes):
             break
     return Episode(
         data=_stack(steps) if record else {}, success=bool(env.success()), length=hold.steps,
@@ -184,7 +187,8 @@ def env_store_meta(env: Env, task: str, options: dict[str, Any], provenance: lis
         fps=float(env.fps),
         features=recorded_features(env),
         action=env.action_spec,
-        robot=robot_record(env.robot),
-        task={"name": task, "options": dict(options), "horizon": int(env.horizon)},
+        robot=robot_record(env.robot) if env.robot is not None else None,
+        task={"name": task, "options": dict(options), "horizon": int(env.horizon),
+              **({"env": env.record()} if isinstance(env, ForeignEnv) else {})},
         provenance=list(provenance),
     )

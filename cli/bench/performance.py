@@ -346,3 +346,24 @@ def bench_infer(
         )
     )
     write_json(r, json_out)
+
+
+@bench_app.command("env")
+def bench_env(
+    run: str = typer.Argument(..., metavar=RUN, help="A run trained on a Gymnasium environment (demo collect --env)."),
+    episodes: int = typer.Option(50, help="Evaluation episodes per round."),
+    seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
+    rounds: int = typer.Option(3, help="Interleaved rounds of each side; the best of each is kept."),
+    json_out: str = json_option(default="-"),
+) -> None:
+    """The generic environment path's overhead: demo eval steps/s vs a bare Gymnasium loop, same env, policy, seeds."""
+    from demo.bench.env import run as run_env  # deferred: torch stays out of demo --help
+
+    result = run_env(run, episodes=episodes, seed=seed, rounds=rounds)
+    report_console(json_out).print(kv_table("bench env", [
+        ("environment", result["env"]),
+        ("demo eval steps/s", f"{result['figure']['steps_per_s']:,.0f}"),
+        ("bare loop steps/s", f"{result['reference']['steps_per_s']:,.0f}"),
+        ("ratio (target >= 0.9)", f"{result['ratio']:.2f}"),
+    ]))
+    write_json(result, json_out)

@@ -96,6 +96,8 @@ SKIPS = {
                         "tests/experiments/test_crossrobot.py runs it end to end with --json - and parses stdout",
     "bench policies": "collects, trains and evaluates one policy per class (and a distillation); "
                       "tests/experiments/test_policies.py runs it in miniature with --json FILE and reads it",
+    "bench env": "needs a run trained on a Gymnasium environment; tests/collect/test_foreign_env.py runs it with --json FILE "
+                 "on one",
     "irl train": "trains a PPO inner loop per algorithm; "
                  "tests/rl/test_irl.py runs each algorithm in miniature with --json FILE",
     "bench peer-gail": "needs the imitation library, installed in its own venv only (README); "
