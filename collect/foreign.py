@@ -5,7 +5,8 @@ environment's own observation and the ``gymnasium.Env`` (for an expert that need
 or, where the callable takes ``env`` alone and returns an object with ``act(obs)``, a new expert per
 episode (``callable(env)`` right after each reset). Named adapters' experts:
 
-- ``demo``: the scripted expert of a ``demo/<Task>-v0`` environment (``env.unwrapped.expert()``).
+- ``demo``: the scripted expert of a ``demo/<Task>-v0`` environment (``env.unwrapped.expert()``);
+- ``metaworld``: Meta-World's scripted policy of the task (:mod:`demo.sim.metaworld`).
 
 An expert that raises, or returns an action of the wrong shape or with a non-finite value, stops the
 collection with one line naming it; the episodes committed before stay stored.
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
+from demo.sim import metaworld
 from demo.sim.foreign import ForeignEnv
 from demo.sim.rollout import StepCommand, rollout
 
@@ -31,7 +33,7 @@ def _demo_expert(env: Any) -> Any:
     return env.unwrapped.expert()
 
 
-NAMED_EXPERTS: dict[str, Callable[[Any], Any]] = {"demo": _demo_expert}
+NAMED_EXPERTS: dict[str, Callable[[Any], Any]] = {"demo": _demo_expert, "metaworld": metaworld.expert}
 
 
 def load_expert(name: str) -> Callable[[Any], StepExpert]:

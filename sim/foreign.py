@@ -1,8 +1,10 @@
 """Any Gymnasium environment as a task: a source of demonstrations and a judge of policies.
 
 A foreign environment is named by its Gymnasium id (``CartPole-v1``, ``demo/Reach-v0``; a
-``module:`` prefix imports the module that registers it first, ``mypkg.envs:MyEnv-v0``) or by a
-factory, ``module:function`` returning a ``gymnasium.Env``, with keyword arguments either way. Its
+``module:`` prefix imports the module that registers it first, ``mypkg.envs:MyEnv-v0``), by a
+factory, ``module:function`` returning a ``gymnasium.Env``, or through a named adapter,
+``ADAPTER:TASK`` (:data:`ADAPTERS`: ``metaworld:pick-place-v3``, :mod:`demo.sim.metaworld`), with
+keyword arguments in every case. Its
 task name in a store or a run is ``env:<name>`` and its keyword arguments are the task options, so
 :func:`demo.sim.make_env` rebuilds it and ``demo eval RUN`` needs no flag to find it again.
 
@@ -43,6 +45,9 @@ ENV_PREFIX = "env:"  # a store's task name for a foreign environment: env:<id or
 ACTION_NAME = "env"  # the action representation: the environment's own command
 DEFAULT_FPS = 10.0
 HORIZON_OPTION = "max_episode_steps"
+# Named adapters: ``--env NAME:TASK`` builds TASK with the adapter's own factory (a benchmark that needs
+# more than gymnasium.make: a compatibility fix, its task sets, its experts).
+ADAPTERS = {"metaworld": "demo.sim.metaworld:make"}
 
 
 def is_foreign(task: str | None) -> bool:
@@ -60,6 +65,9 @@ def make_gym(name: str, options: dict[str, Any]) -> gymnasium.Env:
     name = name.removeprefix(ENV_PREFIX)
     module, sep, attr = name.rpartition(":")
     where = f"--env {name}"
+    if module in ADAPTERS:
+        adapter, _, function = ADAPTERS[module].partition(":")
+        return getattr(importlib.import_module(adapter), function)(attr, **options)
     if sep:
         try:
             mod = importlib.import_module(module)

@@ -17,10 +17,12 @@ from demo.experiments.compounding import CompoundingConfig, format_table, run as
 from demo.experiments.crossrobot import CrossRobotConfig, run as run_crossrobot
 from demo.experiments.multimodal import run as run_modes
 from demo.experiments.policies import POLICIES, PoliciesConfig, format_rows, run as run_policies
+from demo.experiments.suite import SuiteConfig, format_rows as suite_rows, run as run_suite
 from demo.progress import Tick
 
 _X = CrossRobotConfig()  # the experiment's defaults live in its config dataclass
 _C = CompoundingConfig()
+_S = SuiteConfig()
 
 
 @bench_app.command("crossrobot")
@@ -218,3 +220,28 @@ def bench_multimodal(
     report_console(json_out).print(table(f"bench multimodal ({starts} starts x {samples} samples) -> {r.get('png')}",
                                          ["policy", "success", "left", "right", "none", "starts with both modes"], rows))
     write_json(r, json_out)
+
+
+@bench_app.command("suite")
+def bench_suite(
+    name: str = typer.Argument(..., metavar="NAME", help="metaworld-mt10 or metaworld-mt50 (needs metaworld: "
+                               "pip install --no-deps metaworld==3.1.1)."),
+    out: str = typer.Option(_S.out, "--out", metavar="DIR", help="Stores, runs and per-task results (reused when "
+                            "finished with the same configuration)."),
+    tasks: str = typer.Option(None, help="Comma-separated subset of the suite's tasks.", show_default="every task"),
+    demos: int = typer.Option(_S.demos, help="Demonstrations per task."),
+    episodes: int = typer.Option(_S.episodes, help="Evaluation episodes per task (seeds disjoint from the demos')."),
+    seed: int = typer.Option(_S.seed, help="Seed of the demonstrations, training and evaluation."),
+    steps: int = typer.Option(None, help="BC steps.", show_default="demo train's"),
+    chunk: int = typer.Option(None, help="BC's chunk (1: single-step, ensembling off).", show_default="demo train's"),
+    workers: int = typer.Option(_S.workers, help="Collection and evaluation processes."),
+    json_out: str = json_option("the results", default="-"),
+) -> None:
+    """A public benchmark's tasks, one BC policy per task, judged in the benchmark's own environments."""
+    config = SuiteConfig(suite=name, out=out, tasks=tuple(t.strip() for t in (tasks or "").split(",") if t.strip()),
+                         demos=demos, episodes=episodes, seed=seed, steps=steps, chunk=chunk, workers=workers)
+    with bars() as progress:
+        result = run_suite(config, log=lambda text: progress(Tick(f"bench suite {name}", message=text)))
+    report_console(json_out).print(table(f"{name}: success per task", ("task", "expert", "BC (95% CI)"),
+                                         suite_rows(result)))
+    write_json(result, json_out)

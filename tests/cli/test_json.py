@@ -96,6 +96,8 @@ SKIPS = {
                         "tests/experiments/test_crossrobot.py runs it end to end with --json - and parses stdout",
     "bench policies": "collects, trains and evaluates one policy per class (and a distillation); "
                       "tests/experiments/test_policies.py runs it in miniature with --json FILE and reads it",
+    "bench suite": "needs the metaworld package (optional); tests/experiments/test_suite.py runs it in miniature "
+                   "with --json FILE where it is installed",
     "bench env": "needs a run trained on a Gymnasium environment; tests/collect/test_foreign_env.py runs it with --json FILE "
                  "on one",
     "irl train": "trains a PPO inner loop per algorithm; "

@@ -1,0 +1,152 @@
+"""`demo bench suite NAME`: a public benchmark's task set, one BC policy per task, judged in its own environments.
+
+For every task of the suite (``metaworld-mt10``: Meta-World's MT10, ``metaworld-mt50``: MT50):
+
+1. collect ``demos`` demonstrations of the benchmark's scripted policy (``demo collect --env
+   metaworld:<task> --expert metaworld``), seeds ``episode_seed(seed, i)``: the expert's own success
+   on them is the ceiling;
+2. train BC on the successful ones (``demo train``'s defaults unless ``chunk``/``steps`` say otherwise);
+3. evaluate on ``episodes`` episodes whose seeds are disjoint from the demonstrations'
+   (``demo eval``), success by the environment's own ``info["success"]``.
+
+It writes one JSON (per task: the expert's success, BC's success with its 95% interval, times; the
+average; the configuration) and a figure (per-task success, expert and BC). Stores and runs stay
+under ``out``; a rerun reuses every finished task (same configuration).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from demo import algorithms
+from demo.collect.scripted import CollectConfig, collect_scripted
+from demo.errors import DemoError
+from demo.figures import pyplot, save_figure
+from demo.sim.foreign import task_name
+from demo.training.config import TrainConfig
+
+SUITES = {"metaworld-mt10": ("metaworld", "MT10"), "metaworld-mt50": ("metaworld", "MT50")}
+TARGET = 0.95  # MT10's average success, one BC policy per task from state
+
+
+@dataclass
+class SuiteConfig:
+    suite: str = "metaworld-mt10"
+    out: str = "suite"
+    tasks: tuple[str, ...] = ()  # a subset (default: every task of the suite)
+    demos: int = 50  # demonstrations per task
+    episodes: int = 50  # evaluation episodes per task
+    seed: int = 0
+    steps: int | None = None  # BC steps (None: demo train's default)
+    chunk: int | None = None  # BC's chunk (None: demo train's default; 1 with ensembling off for single-step)
+    workers: int = 1
+
+    def check(self) -> None:
+        if self.suite not in SUITES:
+            raise DemoError("NAME", f"unknown suite {self.suite!r} (choose from {', '.join(SUITES)})")
+        if self.demos < 2 or self.episodes < 1:
+            raise DemoError("--demos", "needs at least 2 demonstrations and 1 evaluation episode per task")
+
+
+def task_list(c: SuiteConfig) -> list[str]:
+    adapter, name = SUITES[c.suite]
+    from demo.sim.metaworld import task_set  # deferred: an optional benchmark package, checked here
+
+    tasks = task_set(name)
+    unknown = sorted(set(c.tasks) - set(tasks))
+    if unknown:
+        raise DemoError("--tasks", f"not in {c.suite}: {', '.join(unknown)}")
+    return [t for t in tasks if not c.tasks or t in c.tasks]
+
+
+def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str, Any]:
+    """Collect, train and evaluate one task (reused when its result is there for the same configuration)."""
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+
+    adapter, _ = SUITES[c.suite]
+    folder = Path(c.out) / task
+    done = folder / "result.json"
+    # What a task's result depends on: MT50 reuses MT10's tasks finished in the same --out.
+    key = {k: v for k, v in asdict(c).items() if k not in ("suite", "out", "tasks", "workers")}
+    if done.is_file():
+        previous = json.loads(done.read_text())
+        if previous.get("configuration") == key:
+            return previous
+    folder.mkdir(parents=True, exist_ok=True)
+    env = task_name(f"{adapter}:{task}")
+    t0 = time.perf_counter()
+    log(f"{task}: collect {c.demos}")
+    collected = collect_scripted(CollectConfig(task=env, episodes=c.demos, seed=c.seed, expert=adapter),
+                                 folder / "demos.zarr", workers=c.workers, overwrite=True)
+    t1 = time.perf_counter()
+    log(f"{task}: train BC on {collected.successes} successful demos")
+    given: dict[str, Any] = {"steps": c.steps}
+    if c.chunk is not None:
+        given.update(chunk=c.chunk, ensemble=c.chunk > 1)
+    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
+                                               seed=c.seed, **given), overwrite=True)
+    t2 = time.perf_counter()
+    log(f"{task}: evaluate {c.episodes}")
+    result = evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers))
+    t3 = time.perf_counter()
+    out = {
+        "task": task,
+        "expert": {"successes": collected.successes, "episodes": collected.episodes,
+                   "success_rate": collected.success_rate},
+        "bc": {k: result[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+        "seeds_shared_with_training_data": result["seeds_shared_with_training_data"],
+        "train": {k: train[k] for k in ("step", "train_loss", "val_loss", "train_episodes")},
+        "seconds": {"collect": t1 - t0, "train": t2 - t1, "eval": t3 - t2},
+        "configuration": key,
+    }
+    done.write_text(json.dumps(out, indent=1) + "\n")
+    return out
+
+
+def run(c: SuiteConfig, log: Callable[[str], None] = lambda text: None) -> dict[str, Any]:
+    """Every task of the suite (module docstring); the JSON-able result, with the figure written to ``out``."""
+    c.check()
+    tasks = task_list(c)
+    rows = [run_task(c, task, log) for task in tasks]
+    mean = sum(r["bc"]["success_rate"] for r in rows) / len(rows)
+    expert = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
+    figure = plot(rows, Path(c.out) / f"{c.suite}.png", title=f"{c.suite}: BC per task ({c.demos} demos, "
+                                                              f"{c.episodes} eval episodes)")
+    return {"bench": "suite", "suite": c.suite, "tasks": rows, "average_bc": mean, "average_expert": expert,
+            "worst": [r["task"] for r in sorted(rows, key=lambda r: r["bc"]["success_rate"])[:5]],
+            "target": TARGET, "meets_target": mean >= TARGET, "figure": str(figure), "configuration": asdict(c)}
+
+
+def plot(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
+    """Per-task success: the expert's (the ceiling) and BC's with its 95% interval."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.6 * len(rows) + 2), 4.6))
+    x = list(range(len(rows)))
+    ax.bar([i - 0.2 for i in x], [r["expert"]["success_rate"] for r in rows], width=0.4, label="expert (collection)")
+    bc = [r["bc"]["success_rate"] for r in rows]
+    err = [[b - r["bc"]["ci95"][0] for b, r in zip(bc, rows)], [r["bc"]["ci95"][1] - b for b, r in zip(bc, rows)]]
+    ax.bar([i + 0.2 for i in x], bc, width=0.4, yerr=err, capsize=2, label="BC (held-out seeds)")
+    ax.set_xticks(x, [r["task"].removesuffix("-v3") for r in rows], rotation=45, ha="right", fontsize=8)
+    ax.set_ylim(0, 1.18)
+    ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    ax.set_ylabel("success rate")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8, loc="upper center", ncol=2, frameon=False)
+    fig.tight_layout()  # the rotated task names below the axes stay inside the figure
+    return save_figure(fig, path)
+
+
+def format_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """Per task: expert success, BC success with its interval."""
+    rows = []
+    for r in result["tasks"]:
+        lo, hi = r["bc"]["ci95"]
+        rows.append((r["task"], f"{r['expert']['successes']}/{r['expert']['episodes']}",
+                     f"{r['bc']['successes']}/{r['bc']['episodes']} ({lo:.0%}-{hi:.0%})"))
+    rows.append(("average", f"{result['average_expert']:.1%}", f"{result['average_bc']:.1%}"))
+    return rows
+

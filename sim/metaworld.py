@@ -1,0 +1,102 @@
+"""Meta-World as a named environment adapter: ``--env metaworld:<task>`` (:mod:`demo.sim.foreign`), its
+scripted policies as experts (``--expert metaworld``), its task sets (``MT10``, ``MT50``).
+
+An optional dependency, installed by name (``pip install metaworld==3.1.1 --no-deps``: it pins
+``mujoco==3.3.0``, and runs on the project's MuJoCo 4 with the one change below); nothing else
+needs it, and a command that does without it says so in one line.
+
+- **The environment** is the benchmark's own: ``gymnasium.make("Meta-World/MT1", env_name=<task>,
+  seed=<benchmark seed>)``, whose resets draw among the task's 50 goal and object variations (the
+  MT protocol), 39-D state, a 4-D action (end-effector displacement and gripper), 500 steps, and its
+  own ``info["success"]``.
+- **MuJoCo 4**: a weld constraint's ``eq_data`` grew from 11 to 12 numbers: the 12th, new, tells
+  ``mj_setConst`` to recompute the relative pose from ``qpos0`` when nonzero (MuJoCo 4's changelog), and
+  Meta-World's welds compile with it at 1. Meta-World's ``reset_mocap_welds`` writes 11 values and fails
+  to broadcast; :func:`_mujoco4_welds` writes the same 11 and a 0 (keep the pose it sets; nothing in
+  this path calls ``mj_setConst``, so 0 and 1 measure the same). Measured against Meta-World on its
+  own MuJoCo 3.3.0, 50 episodes of each MT10 task's scripted policy: the same success count on all
+  ten tasks, mean lengths within 0.3 steps on eight (docs/environments.md).
+- **The expert** of an episode is ``metaworld.policies.ENV_POLICY_MAP[task]()``'s ``get_action(obs)``,
+  a function of the observation alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from demo.errors import DemoError
+
+ADAPTER = "metaworld"
+INSTALL = "pip install --no-deps metaworld==3.1.1"
+BENCHMARK_SEED = 0  # the seed Meta-World's MT1 benchmark draws its 50 task variations with
+
+
+def _import() -> Any:
+    try:
+        import metaworld  # deferred: an optional dependency, imported where it is used
+    except ImportError:
+        raise DemoError("--env metaworld", f"Meta-World is not installed ({INSTALL})") from None
+    return metaworld
+
+
+def _mujoco4_welds() -> None:
+    """Meta-World's mocap-weld reset, writing its 11 weld parameters into MuJoCo 4's 12 (module docstring)."""
+    import mujoco  # deferred: only with Meta-World
+
+    from metaworld import sawyer_xyz_env  # deferred: an optional dependency
+
+    base = sawyer_xyz_env.SawyerMocapBase
+    if getattr(base.reset_mocap_welds, "demo_mujoco4", False):
+        return
+
+    def reset_mocap_welds(self: Any) -> None:
+        if self.model.nmocap > 0 and self.model.eq_data is not None:
+            for i in range(self.model.eq_data.shape[0]):
+                if self.model.eq_type[i] == mujoco.mjtEq.mjEQ_WELD:
+                    self.model.eq_data[i] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 5.0, 0.0]
+
+    reset_mocap_welds.demo_mujoco4 = True  # type: ignore[attr-defined]
+    base.reset_mocap_welds = reset_mocap_welds
+
+
+def task_set(name: str) -> list[str]:
+    """The tasks of a Meta-World set (``MT10``, ``MT50``), or ``[name]`` for one task."""
+    _import()
+    from metaworld import env_dict  # deferred: an optional dependency
+
+    sets = {"MT10": list(env_dict.MT10_V3), "MT50": list(env_dict.MT50_V3)}
+    if name in sets:
+        return sets[name]
+    if name not in env_dict.ALL_V3_ENVIRONMENTS:
+        raise DemoError(f"--env metaworld:{name}", f"is no Meta-World task nor set (sets: {', '.join(sets)}; "
+                                                   "tasks e.g. pick-place-v3)")
+    return [name]
+
+
+def make(task: str, seed: int = BENCHMARK_SEED, **options: Any) -> gymnasium.Env:
+    """The Meta-World task ``task`` (e.g. ``pick-place-v3``) as the benchmark builds it (module docstring)."""
+    (single,) = task_set(task) if task not in ("MT10", "MT50") else (None,)
+    if single is None:
+        raise DemoError(f"--env metaworld:{task}", "names a set of tasks: collect each (demo bench suite metaworld-mt10)")
+    _mujoco4_welds()
+    # disable_env_checker: its passive checker warns about Meta-World's own spaces on every make
+    return gymnasium.make("Meta-World/MT1", env_name=single, seed=seed, disable_env_checker=True, **options)
+
+
+def expert(env: gymnasium.Env) -> Any:
+    """The scripted policy of the task ``env`` runs, for one episode (``act(obs) -> action``)."""
+    from metaworld.policies import ENV_POLICY_MAP  # deferred: an optional dependency
+
+    task = (env.spec.kwargs if env.spec is not None else {}).get("env_name")
+    if task not in ENV_POLICY_MAP:
+        raise DemoError("--expert metaworld", f"Meta-World has no scripted policy for {task!r}")
+    policy = ENV_POLICY_MAP[task]()
+
+    class Expert:
+        def act(self, obs: np.ndarray) -> np.ndarray:
+            return np.asarray(policy.get_action(obs), dtype=np.float32)
+
+    return Expert()
