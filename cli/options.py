@@ -60,7 +60,7 @@ def executor_option() -> Any:
     """``--executor process|ray``: where a command's ``--workers`` run (:mod:`demo.executor`)."""
     return typer.Option("process", "--executor", metavar="process|ray",
                         help="Where the --workers run: processes of this machine, or Ray actors on a Ray cluster "
-                             "(a local one unless --address; pip install -e '.[ray]'). Same results either way.")
+                             "(a local one unless --address; pip install -e '.\\[ray]'). Same results either way.")
 
 
 def address_option() -> Any:

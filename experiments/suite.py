@@ -47,7 +47,7 @@ class SuiteConfig:
 
     def check(self) -> None:
         if self.suite not in SUITES:
-            raise DemoError("NAME", f"unknown suite {self.suite!r} (choose from {', '.join(SUITES)})")
+            raise DemoError("SUITE", f"unknown suite {self.suite!r} (choose from {', '.join(SUITES)})")
         if self.demos < 2 or self.episodes < 1:
             raise DemoError("--demos", "needs at least 2 demonstrations and 1 evaluation episode per task")
 

@@ -224,7 +224,7 @@ def bench_multimodal(
 
 @bench_app.command("suite")
 def bench_suite(
-    name: str = typer.Argument(..., metavar="NAME", help="metaworld-mt10 or metaworld-mt50 (needs metaworld: "
+    name: str = typer.Argument(..., metavar="SUITE", help="metaworld-mt10 or metaworld-mt50 (needs metaworld: "
                                "pip install --no-deps metaworld==3.1.1)."),
     out: str = typer.Option(_S.out, "--out", metavar="DIR", help="Stores, runs and per-task results (reused when "
                             "finished with the same configuration)."),

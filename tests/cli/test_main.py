@@ -3,6 +3,7 @@ style for every command (positional names, defaults in the help, plain flags).""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -60,7 +61,8 @@ def test_one_style_for_every_command() -> None:
         for p in command.params:
             where = f"demo {name} {p.name}"
             if isinstance(p, typer.core.TyperArgument):
-                if p.metavar not in ("STORE", "RUN", "DATASET", "TOML"):  # TOML: a robot config (demo robot check)
+                # TOML: a robot config (demo robot check); SUITE: a public benchmark's task set (demo bench suite)
+                if p.metavar not in ("STORE", "RUN", "DATASET", "TOML", "SUITE"):
                     problems.append(f"{where}: a store is STORE, a run RUN, a robot config TOML")
                 continue
             if p.name == "help":
@@ -80,3 +82,11 @@ def test_one_style_for_every_command() -> None:
             if not (is_plain_flag or p.required or shown):
                 problems.append(f"{where}: the help does not say what the default is")
     assert problems == []
+
+
+
+def test_help_keeps_brackets_that_rich_would_read_as_markup() -> None:
+    """`--executor`'s help names the extra to install, `.[ray]`, which rich markup would swallow."""
+    shown = subprocess.run([sys.executable, "-m", "demo", "eval", "--help"], capture_output=True, text=True,
+                           env={**os.environ, "COLUMNS": "300"}).stdout
+    assert "pip install -e '.[ray]'" in shown
