@@ -248,9 +248,3 @@ class ForeignEnv:
 
     def close(self) -> None:
         self.gym.close()
-
-    def __enter__(self) -> "ForeignEnv":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -185,7 +185,7 @@ def _close_gripper(env: Env, seconds: float = 1.0) -> float:
 
 def render_home(robot: RobotConfig, path: str | Path, width: int = 640, height: int = 480) -> Path:
     """A PNG of the robot at home in the ``pick`` scene, from the ``front`` camera."""
-    from PIL import Image
+    from PIL import Image  # deferred: Pillow only for --png
 
     path = Path(path)
     with make_env("pick", robot=robot, cameras=[("front", width, height)]) as env:

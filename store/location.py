@@ -112,7 +112,7 @@ class Remote:
 
     def zarr_store(self, read_only: bool) -> Any:
         """A zarr 3 store over this prefix (``zarr.storage.FsspecStore``, asynchronous)."""
-        from zarr.storage import FsspecStore
+        from zarr.storage import FsspecStore  # deferred: fsspec's store only for a URL
 
         return FsspecStore.from_url(str(self), storage_options=_options(self.scheme), read_only=read_only)
 
@@ -136,7 +136,7 @@ def store_path(spec: str | Path | Remote) -> StorePath:
     if protocol in ("file", "local"):
         return Path(spec[len(match.group()):])
     _require_backend(spec, protocol)
-    import fsspec
+    import fsspec  # deferred: fsspec only for a URL
 
     try:
         fs, key = fsspec.core.url_to_fs(spec, **_options(protocol))
@@ -212,7 +212,7 @@ def _options(protocol: str) -> dict[str, Any]:
 
 
 def _require_backend(spec: str, protocol: str) -> None:
-    import fsspec
+    import fsspec  # deferred: fsspec only for a URL
 
     try:
         fsspec.get_filesystem_class(protocol)

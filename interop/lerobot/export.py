@@ -158,7 +158,7 @@ def _vector(values: np.ndarray) -> pa.Array:
 
 
 def _png(image: np.ndarray) -> bytes:
-    from PIL import Image  # loaded only when images are embedded
+    from PIL import Image  # deferred: loaded only when images are embedded
 
     buf = io.BytesIO()
     img = Image.fromarray(image[:, :, 0] if image.shape[2] == 1 else image)

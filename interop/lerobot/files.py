@@ -171,7 +171,7 @@ def column_to_numpy(array: pa.Array | pa.ChunkedArray, where: str) -> np.ndarray
 def decode_images(array: pa.Array | pa.ChunkedArray, shape: tuple[int, ...], where: str) -> np.ndarray:
     """PNG/JPEG bytes -> uint8 ``[T, H, W, C]``; each image's size is checked against the declared
     ``shape`` from its header, before it is decoded."""
-    from PIL import Image  # loaded only when a dataset embeds images
+    from PIL import Image  # deferred: loaded only when a dataset embeds images
 
     if isinstance(array, pa.ChunkedArray):
         array = array.combine_chunks()

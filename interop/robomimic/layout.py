@@ -35,6 +35,6 @@ DEFAULT_FPS = 20.0  # robomimic's robosuite datasets are recorded at 20 Hz contr
 
 def h5py_module() -> Any:
     """h5py, imported when a file is first read or written (not with :mod:`demo.interop`)."""
-    import h5py
+    import h5py  # deferred: h5py only when a robomimic file is read or written
 
     return h5py
