@@ -233,7 +233,7 @@ def bench_suite(
     episodes: int = typer.Option(_S.episodes, help="Evaluation episodes per task (seeds disjoint from the demos')."),
     seed: int = typer.Option(_S.seed, help="Seed of the demonstrations, training and evaluation."),
     steps: int = typer.Option(None, help="BC steps.", show_default="demo train's"),
-    chunk: int = typer.Option(None, help="BC's chunk (1: single-step, ensembling off).", show_default="demo train's"),
+    chunk: int = typer.Option(_S.chunk, help="BC's chunk (1: single-step, ensembling off; > 1: ensembled chunks)."),
     workers: int = typer.Option(_S.workers, help="Collection and evaluation processes."),
     json_out: str = json_option("the results", default="-"),
 ) -> None:
