@@ -61,7 +61,8 @@ def task_name(env: str) -> str:
 
 
 def make_gym(name: str, options: dict[str, Any]) -> gymnasium.Env:
-    """The Gymnasium environment ``name`` (an id, ``module:id`` or ``module:factory``) built with ``options``."""
+    """The Gymnasium environment ``name`` (an id, ``module:id``, ``module:factory`` or ``ADAPTER:TASK``) built with
+    ``options``."""
     name = name.removeprefix(ENV_PREFIX)
     module, sep, attr = name.rpartition(":")
     where = f"--env {name}"
