@@ -35,6 +35,13 @@ def one_line(text: object) -> str:
     return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", flat)
 
 
+def first_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception's first line (at most ``limit`` characters; its type's name when it says nothing),
+    to quote a library's error inside one of ours."""
+    text = str(exc).strip()
+    return text.splitlines()[0][:limit] if text else type(exc).__name__
+
+
 class DemoError(Exception):
     """A problem the user can fix, naming the file (or object) it is about.
 

@@ -112,11 +112,6 @@ def now() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
 
 
-def first_line(exc: BaseException) -> str:
-    text = str(exc).strip() or type(exc).__name__
-    return text.splitlines()[0][:200]
-
-
 # ---------------------------------------------------------------------------------------------- output
 def _occupied(path: Path) -> bool:
     if path.is_dir():

@@ -30,8 +30,7 @@ from typing import Any
 import av
 import numpy as np
 
-from demo.errors import DemoError
-from demo.interop.common import first_line
+from demo.errors import DemoError, first_line
 
 CODEC = "libsvtav1"  # FFmpeg's encoder name
 PIX_FMT = "yuv420p"

@@ -37,7 +37,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.jsonio import replace_atomically, write_json
 from demo.sim.robot_record import resolve_robot, robot_record
 from demo.store import ActionSpec
@@ -354,18 +354,13 @@ def _state_problem(path: Path, exc: BaseException) -> str:
             with zipfile.ZipFile(path) as archive:
                 bad = archive.testzip()
         except (zipfile.BadZipFile, OSError, EOFError, ValueError) as zexc:
-            return f"truncated or corrupted: its zip archive does not read ({_first(zexc)}; {size} bytes)"
+            return f"truncated or corrupted: its zip archive does not read ({first_line(zexc, 160)}; {size} bytes)"
         if bad is not None:
             return f"corrupted: archive member {bad} fails its checksum"
-        return f"a zip archive that is not a torch checkpoint ({_first(exc)})"
+        return f"a zip archive that is not a torch checkpoint ({first_line(exc, 160)})"
     if head.startswith(_PICKLE_HEADS):
-        return f"truncated or corrupted legacy torch checkpoint ({_first(exc)})"
+        return f"truncated or corrupted legacy torch checkpoint ({first_line(exc, 160)})"
     return f"not a torch checkpoint: neither a zip archive nor a pickle (starts with bytes {head.hex(' ')})"
-
-
-def _first(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0][:160] if text else type(exc).__name__
 
 
 def now() -> str:

@@ -11,12 +11,12 @@ import zarr
 from zarr.core.sync import sync
 from zarr.storage import StorePath as ZarrPath
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.store.layout import TABLE_FILE
 from demo.store.location import StorePath
 from demo.store.robot_files import ROBOT_DIR
 from demo.store.spec import StoreMeta
-from demo.store.zarr_io import first_line, gather
+from demo.store.zarr_io import gather
 
 
 class StoreArrays:

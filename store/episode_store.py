@@ -75,7 +75,7 @@ import numpy as np
 import pyarrow as pa
 import zarr
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.store import episode_table, swap, writer_lock
 from demo.store.arrays import StoreArrays
 from demo.store.chunk_writer import RowWriter
@@ -85,7 +85,6 @@ from demo.store.reading import EpisodeSelection, StoreReading
 from demo.store.spec import FORMAT_NAME, SCHEMA_VERSION, StoreMeta
 from demo.store.writer_lock import RemoteWriterLock, WriterLock
 from demo.store.writing import StoreWriting
-from demo.store.zarr_io import first_line
 
 # What other modules import from here (IMAGE_PREFIX and TABLE_FILE are defined in demo.store.layout,
 # EpisodeSelection in demo.store.reading).

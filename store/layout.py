@@ -19,12 +19,12 @@ from zarr.api.asynchronous import create_array
 from zarr.core.sync import sync
 from zarr.storage import StorePath as ZarrPath
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.store import episode_table, swap
 from demo.store.location import Remote, StorePath, zarr_store
 from demo.store.robot_files import copy_robot_files
 from demo.store.spec import FORMAT_NAME, StoreMeta
-from demo.store.zarr_io import first_line, gather
+from demo.store.zarr_io import gather
 
 TABLE_FILE = "episodes.parquet"
 IMAGE_PREFIX = "obs.image_"  # camera images: the only compressed features

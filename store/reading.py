@@ -13,13 +13,13 @@ import numpy as np
 import pyarrow as pa
 from zarr.core.sync import sync
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.store import episode_table
 from demo.store.image_bytes import camera_bytes
 from demo.store.layout import IMAGE_PREFIX, TABLE_FILE
 from demo.store.location import StorePath
 from demo.store.spec import StoreMeta
-from demo.store.zarr_io import first_line, gather
+from demo.store.zarr_io import gather
 
 # What :meth:`StoreReading.select` takes: None (all), a mask name, a boolean array or indices.
 EpisodeSelection = None | str | Sequence[int] | np.ndarray

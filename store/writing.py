@@ -14,13 +14,13 @@ import numpy as np
 import pyarrow as pa
 import zarr
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.store import episode_table
 from demo.store.chunk_writer import RowWriter
 from demo.store.layout import TABLE_FILE
 from demo.store.location import Remote, StorePath, remote_problem
 from demo.store.spec import StoreMeta
-from demo.store.zarr_io import first_line, run_concurrently
+from demo.store.zarr_io import run_concurrently
 
 
 class StoreWriting:

@@ -31,8 +31,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from demo.errors import DemoError
-from demo.interop.common import first_line, is_image
+from demo.errors import DemoError, first_line
+from demo.interop.common import is_image
 from demo.sim import TASK_NAMES, make_env
 from demo.sim.robot_record import resolve_robot
 from demo.store import EpisodeStore, StoreMeta

@@ -15,8 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from demo.errors import DemoError
-from demo.interop.common import first_line
+from demo.errors import DemoError, first_line
 from demo.interop.lerobot.layout import CODEBASE_VERSION, INFO_PATH, TASKS_PATH
 from demo.interop.untrusted import MAX_EPISODE_FRAMES, check_count, check_fps, check_template, inside
 

@@ -15,13 +15,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from demo.errors import DemoError
+from demo.errors import DemoError, first_line
 from demo.interop.common import (
     InteropReport,
     append_info,
     batches,
     check_not_same,
-    first_line,
     now,
     restore_columns,
     staged_output,
