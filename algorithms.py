@@ -112,11 +112,15 @@ def train(name: str, config: Any, *, options: dict[str, str] | None = None, **ho
         raise TypeError(f"{name} trains from a {entry.config.__name__}, not a {type(config).__name__}")
     if entry.named_by and getattr(config, entry.named_by) != name:
         raise ValueError(f"{name}: the config's {entry.named_by} is {getattr(config, entry.named_by)!r}")
+    check_options(name, options)
     if entry.family:
         from demo.imitation.dagger import make_family  # deferred: torch stays out of demo --help
 
         how["family"] = make_family(name, options)
-    elif options:
-        members = ", ".join(family()[1:])
-        raise DemoError("--algo-opt", f"sets an option of {members}, not of {name!r}")
     return entry.load()(config, **how)
+
+
+def check_options(name: str, options: dict[str, str] | None) -> None:
+    """Refuse algorithm options (``--algo-opt``) for an algorithm that has none of its own."""
+    if options and not algorithm(name).family:
+        raise DemoError("--algo-opt", f"sets an option of {', '.join(family()[1:])}, not of {name!r}")

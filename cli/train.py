@@ -113,8 +113,7 @@ def train(
         raise DemoError("--algo", f"{algo} trains on one store (it rolls out on one robot and aggregates into one store)")
     if algo not in FAMILY and (workers != 1 or executor != "process" or address):
         raise DemoError("--workers", "--workers, --executor and --address run DAgger's rollouts: use them with --algo dagger")
-    if algo not in FAMILY and algo_opt:
-        raise DemoError("--algo-opt", f"sets an option of {', '.join(FAMILY[1:])}, not of {algo!r}")
+    algorithms.check_options(algo, parse_policy_opts(algo_opt, "--algo-opt"))
     if nproc < 1:
         raise DemoError("--nproc", f"must be at least 1, got {nproc}")
     if distil is not None and (algo != "diffusion" or max(nproc, distributed.env_world_size()) > 1):

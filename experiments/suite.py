@@ -28,7 +28,8 @@ from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.figures import pyplot, save_figure
 from demo.sim.foreign import task_name
-from demo.training.config import TrainConfig
+from demo.sim.metaworld import task_set
+from demo.training.config import TrainConfig, setting
 
 SUITES = {"metaworld-mt10": ("metaworld", "MT10"), "metaworld-mt50": ("metaworld", "MT50")}
 TARGET = 0.95  # MT10's average success, one BC policy per task from state
@@ -39,14 +40,14 @@ class SuiteConfig:
     suite: str = "metaworld-mt10"
     out: str = "suite"
     tasks: tuple[str, ...] = ()  # a subset (default: every task of the suite)
-    demos: int = 50  # demonstrations per task
-    episodes: int = 50  # evaluation episodes per task
-    seed: int = 0
-    steps: int | None = None  # BC steps (None: demo train's default)
-    # BC's chunk (None: demo train's, 16 ensembled). Single-step is the measured best here: MT10 97.8% against
-    # 96.2% with 16-step ensembled chunks; MT50's handle-pull 50/50 against 0/50 (docs/environments.md).
-    chunk: int | None = 1
-    workers: int = 1
+    demos: int = setting(50, "Demonstrations per task.")
+    episodes: int = setting(50, "Evaluation episodes per task (seeds disjoint from the demonstrations').")
+    seed: int = setting(0, "Seed of the demonstrations, training and evaluation.")
+    steps: int | None = setting(None, "BC steps.", unset="demo train's")
+    # Single-step is the measured best here: MT10 97.8% against 96.2% with 16-step ensembled chunks (demo train's
+    # default); MT50's handle-pull 50/50 against 0/50 (docs/environments.md).
+    chunk: int = setting(1, "BC's chunk (1: single-step, ensembling off; > 1: ensembled chunks).")
+    workers: int = setting(1, "Collection and evaluation processes.")
 
     def check(self) -> None:
         if self.suite not in SUITES:
@@ -56,9 +57,7 @@ class SuiteConfig:
 
 
 def task_list(c: SuiteConfig) -> list[str]:
-    adapter, name = SUITES[c.suite]
-    from demo.sim.metaworld import task_set  # deferred: an optional benchmark package, checked here
-
+    _, name = SUITES[c.suite]
     tasks = task_set(name)
     unknown = sorted(set(c.tasks) - set(tasks))
     if unknown:
@@ -87,9 +86,7 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
                                  folder / "demos.zarr", workers=c.workers, overwrite=True)
     t1 = time.perf_counter()
     log(f"{task}: train BC on {collected.successes} successful demos")
-    given: dict[str, Any] = {"steps": c.steps}
-    if c.chunk is not None:
-        given.update(chunk=c.chunk, ensemble=c.chunk > 1)
+    given: dict[str, Any] = {"steps": c.steps, "chunk": c.chunk, "ensemble": c.chunk > 1}
     train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
                                                seed=c.seed, **given), overwrite=True)
     t2 = time.perf_counter()

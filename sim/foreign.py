@@ -60,6 +60,13 @@ def task_name(env: str) -> str:
     return env if is_foreign(env) else ENV_PREFIX + env
 
 
+def success_of(info: Any) -> bool:
+    """The environment's own success flag in a step's ``info`` (``success``, else ``is_success``; a number
+    counts when > 0)."""
+    flag = info.get("success", info.get("is_success", False)) if isinstance(info, dict) else False
+    return bool(float(flag) > 0)
+
+
 def make_gym(name: str, options: dict[str, Any]) -> gymnasium.Env:
     """The Gymnasium environment ``name`` (an id, ``module:id``, ``module:factory`` or ``ADAPTER:TASK``) built with
     ``options``."""
@@ -228,8 +235,7 @@ class ForeignEnv:
         self.raw_obs = obs
         self._steps += 1
         self._obs = self.frame_of(obs)
-        flag = info.get("success", info.get("is_success", False)) if isinstance(info, dict) else False
-        self._success = bool(float(flag) > 0)
+        self._success = success_of(info)
         ended = bool(terminated or truncated or self._success or self._steps >= self.horizon)
         return self._obs, float(reward), self._success, ended, info
 

@@ -4,10 +4,12 @@ README's results (:mod:`demo.experiments`), each a configuration and a run."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from demo.cli.bench import bench_app
+from demo.cli.config_options import config_options, with_options
 from demo.cli.options import RUN, json_option
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
@@ -22,7 +24,6 @@ from demo.progress import Tick
 
 _X = CrossRobotConfig()  # the experiment's defaults live in its config dataclass
 _C = CompoundingConfig()
-_S = SuiteConfig()
 
 
 @bench_app.command("crossrobot")
@@ -223,23 +224,19 @@ def bench_multimodal(
 
 
 @bench_app.command("suite")
+@with_options("tasks", config_options(SuiteConfig))
 def bench_suite(
     name: str = typer.Argument(..., metavar="SUITE", help="metaworld-mt10 or metaworld-mt50 (needs metaworld: "
                                "pip install --no-deps metaworld==3.1.1)."),
-    out: str = typer.Option(_S.out, "--out", metavar="DIR", help="Stores, runs and per-task results (reused when "
-                            "finished with the same configuration)."),
+    out: str = typer.Option(SuiteConfig.out, "--out", metavar="DIR", help="Stores, runs and per-task results (reused "
+                            "when finished with the same configuration)."),
     tasks: str = typer.Option(None, help="Comma-separated subset of the suite's tasks.", show_default="every task"),
-    demos: int = typer.Option(_S.demos, help="Demonstrations per task."),
-    episodes: int = typer.Option(_S.episodes, help="Evaluation episodes per task (seeds disjoint from the demos')."),
-    seed: int = typer.Option(_S.seed, help="Seed of the demonstrations, training and evaluation."),
-    steps: int = typer.Option(None, help="BC steps.", show_default="demo train's"),
-    chunk: int = typer.Option(_S.chunk, help="BC's chunk (1: single-step, ensembling off; > 1: ensembled chunks)."),
-    workers: int = typer.Option(_S.workers, help="Collection and evaluation processes."),
     json_out: str = json_option("the results", default="-"),
+    **settings: Any,  # one per option field of SuiteConfig (with_options)
 ) -> None:
     """A public benchmark's tasks, one BC policy per task, judged in the benchmark's own environments."""
     config = SuiteConfig(suite=name, out=out, tasks=tuple(t.strip() for t in (tasks or "").split(",") if t.strip()),
-                         demos=demos, episodes=episodes, seed=seed, steps=steps, chunk=chunk, workers=workers)
+                         **settings)
     with bars() as progress:
         result = run_suite(config, log=lambda text: progress(Tick(f"bench suite {name}", message=text)))
     report_console(json_out).print(table(f"{name}: success per task", ("task", "expert", "BC (95% CI)"),
