@@ -38,7 +38,8 @@ def collect(
     expert: str = typer.Option(None, metavar="module:callable", help="--env: the expert, called as callable(obs, env) "
                                "-> action each step (or callable(env) -> an object with act(obs), per episode); "
                                "demo: the scripted expert of a demo/<Task>-v0 environment.", show_default="none"),
-    episodes: int = typer.Option(50, help="Number of episodes (scripted; human sources record every input episode)."),
+    episodes: int = typer.Option(50, help="Number of episodes (scripted: per task of a task set such as --env "
+                                 "metaworld:MT10; human sources record every input episode)."),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states (and of all noise)."),
     workers: int = typer.Option(1, help="Simulation processes (or Ray actors) feeding this (writer) process; 0 = all in "
                                         "this process."),

@@ -12,7 +12,7 @@ from demo.cli.options import (address_option, device_option, env_opt_option, env
                               parse_env_opts, robot_option, run_argument)
 from demo.errors import DemoError
 from demo.sim.foreign import task_name
-from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 
 
@@ -27,7 +27,7 @@ def eval_(
     robot: str = robot_option("Robot to evaluate on: the name of one the run was trained on, or a robot config TOML "
                               "(another arm only for an end-effector-space policy, e.g. ee7, through that arm's IK).",
                               "the (first) trained robot"),
-    episodes: int = typer.Option(100, help="Episodes."),
+    episodes: int = typer.Option(100, help="Episodes (per task of a task set, e.g. a run trained on --env metaworld:MT10)."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes (disjoint from collection seeds)."),
     workers: int = typer.Option(1, help="Parallel worker processes, or Ray actors (results do not depend on it)."),
     executor: str = executor_option(),
@@ -83,4 +83,9 @@ def eval_(
     if "video" in result:
         rows.append(("video", result["video"]["path"]))
     report_console(json_out).print(kv_table("evaluated", rows))
+    if "per_task" in result:  # a task set (--env metaworld:MT10): every member's own figure
+        report_console(json_out).print(table("per task", ("task", "success", "95% CI", "failures"), [
+            (name.removeprefix("env:"), f"{r['successes']}/{r['episodes']}", f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}",
+             ", ".join(f"{k}: {v}" for k, v in sorted(r["failures"].items())) or "none")
+            for name, r in result["per_task"].items()]))
     write_json(result, json_out)

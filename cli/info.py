@@ -44,6 +44,8 @@ def info(
         ("mean length", "-" if s["mean_length"] is None else f"{s['mean_length']:.1f} frames"),
         ("sources", ", ".join(f"{k}: {v}" for k, v in s["sources"].items()) or "-"),
         ("operators", ", ".join(f"{k}: {v}" for k, v in s["operators"].items()) or "-"),
+        *([("tasks", ", ".join(f"{k.removeprefix('env:')}: {v}" for k, v in s["tasks"].items()))]
+          if len(s["tasks"]) > 1 else []),
         ("masks", ", ".join(f"{k}: {v} episodes" for k, v in s["masks"].items()) or "-"),
     ]
     if check:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,7 @@ from demo.progress import Progress, Tick, or_silent
 from demo.seeds import episode_seed
 from demo.sim import load_robot, make_env
 from demo.sim.foreign import is_foreign
+from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
@@ -93,8 +94,9 @@ def hold_action(env: Any) -> np.ndarray:
 def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Run one scripted episode: expert, optionally through an operator profile and DART noise."""
     seed = start_seed(config, index)
-    if is_foreign(config.task):
-        return foreign_episode(env, config.expert or "", seed, config.noise)
+    if is_foreign(config.task):  # a task set (demo.sim.foreign_set) runs episode `index` in one of its members
+        member = env.select(index) if isinstance(env, ForeignEnvSet) else env
+        return foreign_episode(member, config.expert or "", seed, config.noise)
     rng = np.random.default_rng([seed, 1])
     profile = get_profile(config.operator)
     n_arm = len(env.robot.arm_joints)
@@ -276,6 +278,8 @@ def collect_scripted(
     env = make_env_for(config)
     try:
         meta = store_meta(config, env)
+        if isinstance(env, ForeignEnvSet):  # --episodes is per task of a set
+            config = replace(config, episodes=config.episodes * len(env.tasks))
     finally:
         env.close()
     report = or_silent(progress)

@@ -55,6 +55,7 @@ from demo.seeds import EVAL_OFFSET, eval_seeds
 from demo.sim import make_env
 from demo.sim.robot_record import resolve_robot
 from demo.sim.foreign import is_foreign
+from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.output import open_output
 from demo.policies.actions import make_action_adapter
@@ -92,6 +93,7 @@ class EpisodeOutcome:
     error: str = ""
     states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
     data: dict[str, np.ndarray] | None = None  # every recorded frame, when the rollout is kept (--record)
+    task: str = ""  # the member of a task set it ran in (demo.sim.foreign_set); "" for one environment
 
     def to_json(self) -> dict[str, Any]:
         d = {
@@ -104,6 +106,8 @@ class EpisodeOutcome:
         }
         if self.error:
             d["error"] = self.error
+        if self.task:
+            d["task"] = self.task
         return d
 
 
@@ -199,7 +203,16 @@ def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = No
 def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool = False, max_steps: int | None = None,
                 keep: bool = False) -> EpisodeOutcome:
     """Reset to ``seed`` and let the policy act until success has held or the horizon; ``record``: keep
-    the states (videos), ``keep``: every frame (:attr:`EpisodeOutcome.data`)."""
+    the states (videos), ``keep``: every frame (:attr:`EpisodeOutcome.data`). In a task set, episode ``index``
+    runs in its member (:meth:`~demo.sim.foreign_set.ForeignEnvSet.select`)."""
+    member = env.select(index) if isinstance(env, ForeignEnvSet) else None
+    outcome = _run_episode(member or env, actor, index, seed, record, max_steps, keep)
+    outcome.task = member.name if member is not None else ""
+    return outcome
+
+
+def _run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: bool, max_steps: int | None,
+                 keep: bool) -> EpisodeOutcome:
     env.reset(seed)
     actor.reset(seed, env)
 
@@ -337,7 +350,9 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     if config.video and is_foreign(task):
         raise DemoError("--video", "replays the simulator's recorded states; a Gymnasium environment's episodes have none")
     execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
-    seeds = eval_seeds(config.seed, config.episodes)
+    env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
+    per_task = len(env.tasks) if isinstance(env, ForeignEnvSet) else 1  # --episodes is per task of a set
+    seeds = eval_seeds(config.seed, config.episodes * per_task)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
     jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]
     start = time.perf_counter()
@@ -349,13 +364,13 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         if store is not None and outcome.data is not None:  # this process alone writes, in episode order
             store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy",
                                  operator="policy", run=str(run), outcome=outcome.outcome,
+                                 **({"task": outcome.task} if outcome.task else {}),
                                  first_success_step=-1 if outcome.first_success_step is None else outcome.first_success_step)
         outcome.data = None
         outcomes.append(outcome)
         successes = sum(o.success for o in outcomes)
         tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
 
-    env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
     robot_name = env.robot.name if env.robot is not None else None  # a Gymnasium environment has none of ours
     transfer = robot_transfer(bundle, robot_name) if robot_name is not None else None
     stack = ExitStack()  # an exception leaves the recorded episodes committed (a store created here and left empty goes)
@@ -379,6 +394,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     stack.close()
     seconds = time.perf_counter() - start
     result = summarize(outcomes)
+    if per_task > 1:
+        result["per_task"] = {name: summarize([o for o in outcomes if o.task == name]) for name in env.tasks}
     training_seeds = set(int(s) for s in (bundle.run.get("data") or {}).get("seeds", []))
     result.update(
         {

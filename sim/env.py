@@ -32,6 +32,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.sim.foreign import ENV_PREFIX, ForeignEnv, is_foreign
+from demo.sim.foreign_set import ForeignEnvSet, set_members
 from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.ik import ArmIK
 from demo.sim.numeric import clip
@@ -424,7 +425,8 @@ def make_env(
         if robot is not None or cameras:
             raise DemoError(f"--env {task.removeprefix(ENV_PREFIX)}", "a Gymnasium environment brings its own robot and "
                                                                      "cameras: --robot and --camera do not apply")
-        return ForeignEnv(task, **task_options)
+        members = set_members(task)  # a named adapter's task set (metaworld:MT10): one environment per episode
+        return ForeignEnvSet(task, members, **task_options) if members else ForeignEnv(task, **task_options)
     if task not in TASKS:
         raise DemoError(task, f"unknown task (known: {', '.join(TASKS)}; any Gymnasium environment: env:ID)")
     return Env(TASKS[task](**task_options), load_robot(robot), cameras)

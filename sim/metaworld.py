@@ -79,7 +79,7 @@ def task_set(name: str) -> list[str]:
 def make(task: str, seed: int = BENCHMARK_SEED, **options: Any) -> gymnasium.Env:
     """The Meta-World task ``task`` (e.g. ``pick-place-v3``) as the benchmark builds it (module docstring)."""
     if len(task_set(task)) > 1:
-        raise DemoError(f"--env metaworld:{task}", "names a set of tasks: collect each (demo bench suite metaworld-mt10)")
+        raise DemoError(f"--env metaworld:{task}", "names a set of tasks, not one environment (demo.sim.foreign_set)")
     _mujoco4_welds()
     # disable_env_checker: its passive checker warns about Meta-World's own spaces on every make
     return gymnasium.make("Meta-World/MT1", env_name=task, seed=seed, disable_env_checker=True, **options)

@@ -36,6 +36,7 @@ import numpy as np
 
 from demo.sim.env import Env
 from demo.sim.foreign import ForeignEnv
+from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.robot_record import robot_record
 from demo.store import FeatureSpec, StoreMeta
 
@@ -189,6 +190,6 @@ def env_store_meta(env: Env, task: str, options: dict[str, Any], provenance: lis
         action=env.action_spec,
         robot=robot_record(env.robot) if env.robot is not None else None,
         task={"name": task, "options": dict(options), "horizon": int(env.horizon),
-              **({"env": env.record()} if isinstance(env, ForeignEnv) else {})},
+              **({"env": env.record()} if isinstance(env, (ForeignEnv, ForeignEnvSet)) else {})},
         provenance=list(provenance),
     )

@@ -186,6 +186,7 @@ class StoreReading:
             "mean_length": float(self.episode_lengths.mean()) if self.num_episodes else None,
             "sources": counts("source") if self.num_episodes else {},
             "operators": counts("operator") if self.num_episodes else {},
+            "tasks": counts("task") if self.num_episodes else {},  # per-episode task (several in a task set's store)
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "camera_bytes": camera_bytes({k: (self.array(k), self._dir / "data" / k) for k in self.meta.features
                                           if k.startswith(IMAGE_PREFIX)}, self.num_frames),

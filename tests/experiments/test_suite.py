@@ -27,9 +27,22 @@ def test_metaworld_experts_succeed_in_their_own_environment(tmp_path: Path) -> N
         assert max(store.episode_lengths) < 500  # episodes end at the environment's first success
 
 
-def test_a_task_set_is_not_one_environment(tmp_path: Path, one_line_error) -> None:
-    one_line_error(["collect", "--env", "metaworld:MT10", "--expert", "metaworld", "--episodes", "1",
-                    "--out", str(tmp_path / "x.zarr")], "names a set of tasks")
+def test_a_task_set_collects_every_task_into_one_store_and_is_judged_per_task(tmp_path: Path, one_line_error) -> None:
+    store_path, run = tmp_path / "mt10.zarr", tmp_path / "run"
+    assert main(["collect", "--env", "metaworld:MT10", "--expert", "metaworld", "--episodes", "1", "--seed", "0",
+                 "--workers", "2", "--out", str(store_path)]) == 0
+    with EpisodeStore.open(store_path) as store:
+        tasks = store.column("task").tolist()
+        assert store.meta.task["name"] == "env:metaworld:MT10" and len(store.meta.task["env"]["tasks"]) == 10
+        assert store.num_episodes == 10 and len(set(tasks)) == 10  # --episodes is per task
+        assert tasks[0] == "env:metaworld:reach-v3"  # the set's order, interleaved
+    assert main(["train", str(store_path), "--steps", "20", "--out", str(run)]) == 0
+    result_path = tmp_path / "eval.json"
+    assert main(["eval", str(run), "--episodes", "1", "--json", str(result_path)]) == 0
+    result = json.loads(result_path.read_text())
+    assert result["episodes"] == 10 and len(result["per_task"]) == 10
+    assert [e["task"] for e in result["episodes_detail"]] == tasks
+    assert sum(r["successes"] for r in result["per_task"].values()) == result["successes"]
     one_line_error(["collect", "--env", "metaworld:no-such-task-v3", "--expert", "metaworld", "--episodes", "1",
                     "--out", str(tmp_path / "y.zarr")], "is no Meta-World task")
 
