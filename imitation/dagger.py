@@ -436,7 +436,7 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         if resume:
             saved = run.saved_extra()
             if not saved.get("round_done", False):
-                raise DemoError(run.out, "was interrupted inside a round; start it again without --resume")
+                raise DemoError(run.out, "was interrupted inside a round (DAgger resumes from a finished round); start it again with --overwrite")
             done_round = int(saved.get("round", 0))
             data = round_data(done_round)
             learner = new_learner(data, done_round, 0)

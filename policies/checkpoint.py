@@ -214,8 +214,17 @@ def save_policy(
 ) -> None:
     """Write the evaluation weights and the normalisers to ``policy.safetensors``."""
     tensors = policy_tensors(weights, obs_norm, action_norm)
-    path = Path(run_dir) / POLICY_FILE
-    replace_atomically(path, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+    _write(Path(run_dir) / POLICY_FILE, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
+
+
+def _write(path: Path, write: Any) -> None:
+    """:func:`replace_atomically`, with a failed write (a full disk: torch reports it as a RuntimeError) named
+    by its file in one line; the file before it stays as it was."""
+    try:
+        replace_atomically(path, write)
+    except (OSError, RuntimeError, SafetensorError) as exc:
+        raise DemoError(path, f"could not be written ({first_line(exc)}); is the disk full? The previous "
+                              "checkpoint is kept") from None
 
 
 def policy_tensors(weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer,
@@ -234,7 +243,9 @@ def load_bundle(run_dir: str | Path, device: torch.device | str = "cpu") -> Poli
     parts = _policy_parts(run, run_dir / RUN_FILE)
     path = run_dir / POLICY_FILE
     if not path.is_file():
-        raise DemoError(run_dir, f"has no {POLICY_FILE} (training did not save a policy yet)")
+        resumable = (run_dir / STATE_FILE).is_file()  # a run killed between its periodic train-state saves
+        raise DemoError(run_dir, f"has no {POLICY_FILE}: training stopped before saving a policy"
+                                 + (" (continue it with demo train --resume)" if resumable else ""))
     try:
         tensors = load_file(str(path))
     except (SafetensorError, OSError, ValueError) as exc:
@@ -310,8 +321,7 @@ def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: 
 
 def save_train_state(run_dir: str | Path, state: dict[str, Any]) -> None:
     """Write the resume state (tensors, numbers, strings, lists and dicts only)."""
-    path = Path(run_dir) / STATE_FILE
-    replace_atomically(path, lambda tmp: torch.save(state, tmp))
+    _write(Path(run_dir) / STATE_FILE, lambda tmp: torch.save(state, tmp))
 
 
 def load_train_state(run_dir: str | Path) -> dict[str, Any]:

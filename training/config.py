@@ -177,6 +177,10 @@ class TrainConfig:
     # ---- where it runs (set by --robot, --device: options shared with other commands)
     robot: str | None = setting(None, resume=False)  # robot config TOML, where the store's recorded robot files cannot be found
     device: str = setting("auto", resume=False)  # auto (CUDA, else MPS, else CPU) | cpu | cuda | mps (demo.policies.device)
+    # A kill loses at most this much training; each save costs milliseconds for these networks (the cost is in
+    # metrics.json: checkpoint_seconds).
+    checkpoint_every: float = setting(60.0, "Seconds between train-state saves (a kill loses at most this much; "
+                                            "0 = only at evaluations and the end).", resume=False)
     # small networks gain little from more threads, and idle ones busy-wait on a shared machine
     threads: int = setting(1, "Torch threads (0 = torch's default).", resume=False)
 

@@ -12,7 +12,10 @@ and formats):
    from ``demo eval`` (:class:`Monitor`) and logs the result in ``metrics["eval"]``;
 5. **checkpoints**: :meth:`checkpoint` saves the policy (``policy.safetensors`` and its normalisers),
    the train state (tensors only), ``metrics.json`` and the curves; Ctrl-C inside the ``with`` block
-   saves one before stopping;
+   saves one before stopping. Between them the train state alone is saved as soon as the directory
+   is made (:meth:`save_state`) and then every ``checkpoint_every`` seconds (:meth:`save_state_if_due`),
+   so that a run killed at any moment is complete, resumable (``--resume`` continues bit-exactly from
+   its last save) or absent;
 6. **the summary**: :meth:`finish` writes the final metrics, the record and a last checkpoint.
 
 A subclass says what is its own: the step it counts (:attr:`step`), the policy as it is now
@@ -84,8 +87,10 @@ class Run:
 
     def __init__(self, out: str | Path, *, seed: int, threads: int, stage: str, title: str, total_steps: int,
                  monitor_episodes: int = 0, progress: Progress | None = None, resume: bool = False,
-                 overwrite: bool = False, command: str | None = None, group: distributed.Group | None = None):
+                 overwrite: bool = False, command: str | None = None, group: distributed.Group | None = None,
+                 checkpoint_every: float = 0.0):
         self.out = Path(out)
+        self.checkpoint_every = checkpoint_every  # seconds between periodic train-state saves; 0: none
         self.group = group
         self.resume, self.overwrite, self.command = resume, overwrite, command
         self.progress = or_silent(progress if self.is_main else None)  # rank 0 reports for all
@@ -98,6 +103,7 @@ class Run:
         self.record: dict[str, Any] = {}
         self._fields = {"loss": "-", "val": "-", "success": "-", "info": ""}
         self._started = time.perf_counter()
+        self._saved_at = self._started
         self._opened = False
         self._saved: dict[str, Any] | None = None  # the train state a resumed run continues from, read once
 
@@ -220,8 +226,24 @@ class Run:
         weights, obs_norm, action_norm = self.policy_weights()
         ckpt.save_policy(self.out, weights, obs_norm, action_norm)
         ckpt.save_train_state(self.out, self.train_state(extra))
+        self._saved_at = time.perf_counter()
         ckpt.write_json(self.out / ckpt.METRICS_FILE, self.metrics)
         self.plot(self.out / ckpt.CURVES_FILE)
+
+    def save_state(self) -> None:
+        """Save the train state alone (what ``--resume`` needs; no policy, metrics or curves), timed in
+        ``metrics["checkpoint_seconds"]``."""
+        if not self.is_main:
+            return
+        t0 = time.perf_counter()
+        ckpt.save_train_state(self.out, self.train_state(None))
+        self._saved_at = time.perf_counter()
+        self.metrics["checkpoint_seconds"] = self.metrics.get("checkpoint_seconds", 0.0) + self._saved_at - t0
+
+    def save_state_if_due(self) -> None:
+        """:meth:`save_state` when ``checkpoint_every`` seconds have passed since the last save."""
+        if self.checkpoint_every > 0 and time.perf_counter() - self._saved_at >= self.checkpoint_every:
+            self.save_state()
 
     def finish(self, extra: dict[str, Any] | None = None, **final: Any) -> dict[str, Any]:
         """Final metrics (``final`` added), the record, a last checkpoint (with ``extra``); the summary."""

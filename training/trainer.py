@@ -13,7 +13,8 @@ RL) over a learner and its training data, so that an algorithm file holds only w
    loss every ``val_every``, rollout success every ``eval_every`` (:class:`demo.training.run.Monitor`: episodes of
    the store's task on seeds disjoint from the data and from ``demo eval``);
 5. **checkpoints**: the policy (evaluation weights) and ``train_state.pt`` (tensors only) at every
-   evaluation, at the end, and on Ctrl-C, so that ``resume`` continues bit-exactly;
+   evaluation, at the end, and on Ctrl-C; the train state alone once the directory is made and every
+   ``checkpoint_every`` seconds, so that ``resume`` continues bit-exactly after a kill at any moment;
 6. **metrics and the summary**: ``metrics.json``, ``curves.png``, the dict :meth:`finish` returns.
 
 Progress is reported as :class:`demo.progress.Tick` s of one stage ("train ALGO") with the fields
@@ -83,7 +84,8 @@ class TrainingRun(Run):
         super().__init__(config.out, seed=config.seed, threads=config.threads, stage=f"train {name or config.algo}",
                          title=title or f"{config.algo} on {' + '.join(Path(p).name for p in config.stores)}",
                          total_steps=total_steps or config.steps, monitor_episodes=config.eval_episodes if monitored else 0,
-                         progress=progress, resume=resume, overwrite=overwrite, command=command, group=group)
+                         progress=progress, resume=resume, overwrite=overwrite, command=command, group=group,
+                         checkpoint_every=config.checkpoint_every)
         self.config = config
         self.rng = np.random.default_rng([config.seed, 0xB0C])
         self.metrics = {"train_loss": [], "val_loss": [], "eval": []}
@@ -141,6 +143,8 @@ class TrainingRun(Run):
         for i, robot in enumerate(robots):
             ckpt.save_robot(ckpt.robot_home(self.out, i), robot, stores[robot_of.index(i)].path)
         self.write_record()
+        if not self.resume:
+            self.save_state()  # from here a kill leaves a run that --resume continues (module docstring of run.py)
 
     def attach(self, learner: Learner, data: TrainingData) -> None:
         """Make ``learner`` (trained on ``data``) the one checkpointed, evaluated and reported."""
@@ -203,6 +207,7 @@ class TrainingRun(Run):
             if self.monitor is not None and c.eval_every and step % c.eval_every == 0 and step != until:
                 self.evaluate()
                 self.checkpoint()
+            self.save_state_if_due()
 
     def _distribute(self, learner: Learner) -> None:
         """Data-parallel from here on: the loss through DDP, and this rank's own batch and noise RNGs,

@@ -76,3 +76,36 @@ def test_progress_reports_steps_and_losses(data: Path, tmp_path: Path, tiny_bc_c
     done = [t.done for t in ticks if t.done is not None]
     assert done == sorted(done) and done[-1] == 40
     assert ticks[-1].fields["loss"] != "-" and ticks[-1].fields["val"] != "-"
+
+
+def test_a_killed_run_resumes_to_the_same_weights(data: Path, tmp_path: Path) -> None:
+    """SIGKILL between periodic train-state saves: --resume continues from the last one, bit-exactly."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from demo.cli.main import main
+
+    flags = ["--steps", "400", "--chunk", "1", "--no-ensemble", "--batch-size", "64", "--seed", "3"]
+    killed = tmp_path / "killed"
+    process = subprocess.Popen([sys.executable, "-m", "demo", "train", str(data), *flags, "--checkpoint-every", "0.05",
+                                "--out", str(killed)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                               env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    state, seen, deadline = killed / ckpt.STATE_FILE, set(), time.monotonic() + 120
+    while len(seen) < 3 and process.poll() is None and time.monotonic() < deadline:  # the save at step 0, then two more
+        if state.is_file():
+            seen.add(state.stat().st_mtime_ns)
+        time.sleep(0.01)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert process.returncode == -signal.SIGKILL, "training finished before it could be killed: raise --steps"
+    assert not (killed / ckpt.POLICY_FILE).exists()  # not complete: resumable
+    assert main(["eval", str(killed), "--episodes", "1"]) != 0  # says to resume (no half-made policy to evaluate)
+    assert main(["train", str(data), *flags, "--out", str(killed), "--resume"]) == 0
+    assert main(["train", str(data), *flags, "--out", str(tmp_path / "straight")]) == 0
+    a, b = ckpt.load_train_state(tmp_path / "straight"), ckpt.load_train_state(killed)
+    assert a["step"] == b["step"] == 400
+    for key in a["policy"]:
+        assert torch.equal(a["policy"][key], b["policy"][key]), key
