@@ -64,17 +64,26 @@ class Monitor:
 def check_run_directory(out: Path, resume: bool, overwrite: bool) -> bool:
     """Refuse (DemoError) a run directory this run may not use; True when it holds an older run that
     ``overwrite`` replaces. Read-only: callers (and a launcher, before its processes start) decide."""
+    unstarted = unstarted_run(out)
     if resume:
         if not (out / ckpt.STATE_FILE).is_file():
-            raise DemoError(out, f"nothing to resume (no {ckpt.STATE_FILE})")
+            raise DemoError(out, "was stopped before its first save: start it again without --resume" if unstarted
+                            else f"nothing to resume (no {ckpt.STATE_FILE})")
         return False
     stale = out.exists() and any(out.iterdir())
-    if stale:
+    if stale and not unstarted:
         if not overwrite:
             raise DemoError(out, "already exists (pass --resume to continue it, --overwrite to replace it)")
         if not (out / ckpt.RUN_FILE).is_file():
             raise DemoError(out, "exists and is not a training run; refusing to overwrite it")
     return stale
+
+
+def unstarted_run(out: Path) -> bool:
+    """A run directory killed before its first save: a record but neither a train state nor a policy. It holds
+    no training, so a new run may replace it without ``--overwrite``."""
+    return ((out / ckpt.RUN_FILE).is_file() and not (out / ckpt.STATE_FILE).exists()
+            and not (out / ckpt.POLICY_FILE).exists())
 
 
 class Run:

@@ -1,4 +1,4 @@
-"""`demo bench load|collect|render|faults|convert|curate|retarget|train|infer`: performance benchmarks,
+"""`demo bench load|collect|render|faults|resume|convert|curate|retarget|train|infer`: performance benchmarks,
 each the figure and its reference measured in the same run, written as JSON."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from demo.bench.curate import run as run_curate
 from demo.bench.faults import FaultsConfig, run as run_faults
 from demo.bench.load import run as run_load
 from demo.bench.render import DEFAULT_CAMERAS, run as run_render
+from demo.bench.resume import KINDS as RESUME_KINDS, ResumeConfig, run as run_resume
 from demo.bench.retarget import run as run_retarget
 from demo.cli.bench import bench_app
 from demo.cli.options import RUN, address_option, device_option, executor_option, json_option, robot_option
@@ -145,6 +146,40 @@ def bench_faults(
     write_json(r, json_out)
     if not r["ok"]:
         raise typer.Exit(1)  # a finished episode was lost, or a refusal was not one clean line
+
+
+_R = ResumeConfig()
+
+
+@bench_app.command("resume")
+def bench_resume(
+    json_out: str = json_option(default="-"),
+    out: Path = typer.Option(Path(_R.out), metavar="DIR", help="Stores and runs of the trials."),
+    kinds: str = typer.Option(",".join(_R.kinds), help=f"Comma-separated policy kinds: {', '.join(RESUME_KINDS)}."),
+    kills: int = typer.Option(_R.kills, help="Runs killed (SIGKILL) at a random moment, in turn over the kinds."),
+    steps: int = typer.Option(_R.steps, help="Training steps of every run."),
+    checkpoint_every: float = typer.Option(_R.checkpoint_every, help="demo train --checkpoint-every of every run (s)."),
+    seed: int = typer.Option(_R.seed, help="Seed of the data, the training and the kill times."),
+) -> None:
+    """demo train killed at random moments, resumed: final weights equal an uninterrupted run's; training lost per kill."""
+    chosen = tuple(k for k in kinds.split(",") if k)
+    unknown = sorted(set(chosen) - set(RESUME_KINDS))
+    if unknown or not chosen:
+        raise DemoError("--kinds", f"unknown kind(s) {', '.join(unknown) or '(none)'} (choose from {', '.join(RESUME_KINDS)})")
+    config = ResumeConfig(out=str(out), kinds=chosen, kills=kills, steps=steps, checkpoint_every=checkpoint_every,
+                          seed=seed)
+    with bars() as progress:
+        r = run_resume(config, progress=progress)
+    rows = [[t["kind"], f"{t['kill_at_s']:.1f}", "yes" if t["killed"] else "finished first",
+             "-" if t["saved_step"] is None else t["saved_step"], "-" if t["lost_s"] is None else f"{t['lost_s']:.2f}",
+             "yes" if t["identical"] else "NO"] for t in r["trials"]]
+    report_console(json_out).print(table(
+        f"bench resume: {r['identical']}/{len(r['trials'])} identical, most training lost by a kill "
+        f"{r['max_lost_s']:.2f} s (saves every {checkpoint_every:g} s)",
+        ["kind", "kill at (s)", "killed", "resumed from step", "lost (s)", "same final weights"], rows))
+    write_json(r, json_out)
+    if not r["ok"]:
+        raise typer.Exit(1)
 
 
 @bench_app.command("convert")

@@ -109,3 +109,27 @@ def test_a_killed_run_resumes_to_the_same_weights(data: Path, tmp_path: Path) ->
     assert a["step"] == b["step"] == 400
     for key in a["policy"]:
         assert torch.equal(a["policy"][key], b["policy"][key]), key
+
+
+def test_a_run_killed_before_its_first_save_is_started_again(data: Path, tmp_path: Path, tiny_bc_config) -> None:
+    """run.json but no train state nor policy: no training to keep, so no --resume/--overwrite loop."""
+    config = functools.partial(tiny_bc_config, steps=20, log_every=10, val_every=10)
+    train(config(data, tmp_path / "run"))
+    (tmp_path / "run" / ckpt.STATE_FILE).unlink()
+    (tmp_path / "run" / ckpt.POLICY_FILE).unlink()
+    with pytest.raises(DemoError, match="stopped before its first save: start it again without --resume"):
+        train(config(data, tmp_path / "run"), resume=True)
+    assert train(config(data, tmp_path / "run"))["step"] == 20
+
+
+@pytest.mark.slow  # ~40 s: real processes killed and resumed
+def test_bench_resume_kills_and_resumes(tmp_path: Path) -> None:
+    import json
+
+    from demo.cli.main import main
+
+    out = tmp_path / "r.json"
+    assert main(["bench", "resume", "--kinds", "bc", "--kills", "2", "--steps", "200", "--checkpoint-every", "0.2",
+                 "--out", str(tmp_path / "b"), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["identical"] == 2 and len(result["trials"]) == 2
