@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,11 +77,37 @@ class StoreReading:
         arrays = [self.array(k) for k in keys]
         values = sync(gather(*(a.async_array.getitem(slice(start, stop)) for a in arrays)))
         out = {}
-        for key, value in zip(keys, values):
+        for key, array, value in zip(keys, arrays, values):
             if isinstance(value, BaseException):
                 raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({first_line(value)})")
+            self._check_chunks(key, array, start, stop)
             out[key] = np.asarray(value)
         return out
+
+    def _check_chunks(self, key: str, array: Any, start: int, stop: int) -> None:
+        """Refuse frames ``[start, stop)`` of ``key`` where a chunk file holding them is missing: zarr reads a
+        missing chunk as its fill value (zeros), which would pass on as data. Local stores only: their writer
+        writes every chunk it puts rows in (:mod:`demo.store.chunk_writer`), so a missing one is damage; on
+        object storage zarr skips chunks of fill values, and ``demo info --check``'s checksums judge. One
+        ``stat`` per chunk read (chunks hold thousands of low-dimensional frames)."""
+        if not isinstance(self._dir, Path) or stop <= start:
+            return
+        rows = int(array.metadata.chunk_grid.chunk_shape[0])
+        zeros = (0,) * (len(array.shape) - 1)
+        folder = self._dir / "data" / key
+        seen = self.__dict__.setdefault("_chunks_seen", set())  # chunks found once are not looked for again
+        for chunk in range(start // rows, (stop - 1) // rows + 1):
+            if (key, chunk) in seen:
+                continue
+            name = array.metadata.encode_chunk_key((chunk, *zeros))
+            if (folder / name).is_file():
+                seen.add((key, chunk))
+            else:
+                first = max(start, chunk * rows)
+                episode = int(np.searchsorted(self.episode_ends, first, side="right"))
+                raise DemoError(folder / name, f"is missing: episode {episode} (frames {first}-"
+                                               f"{min(stop, (chunk + 1) * rows) - 1}) cannot be read; the store is "
+                                               "damaged (demo info --check lists every damaged episode)")
 
     def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """All frames of one episode: ``{key: array[length, ...]}``."""

@@ -233,11 +233,11 @@ def test_bad_input_corrupted_chunk(tmp_path: Path, one_line_error) -> None:
         EpisodeStore.open(tmp_path / "s.zarr").read_episode(0)
 
 
-def test_bad_input_missing_chunk_is_caught_by_checksum(tmp_path: Path, one_line_error) -> None:
+def test_bad_input_missing_chunk_is_caught_by_info_check(tmp_path: Path, one_line_error) -> None:
     filled_store(tmp_path / "s.zarr")
     for chunk in chunk_files(tmp_path / "s.zarr", "sim.state"):
         chunk.unlink()
-    one_line_error(["info", str(tmp_path / "s.zarr"), "--check"], "does not match its checksum")
+    one_line_error(["info", str(tmp_path / "s.zarr"), "--check"], "damaged episode", "cannot be read")
 
 
 def test_bad_input_on_append(tmp_path: Path) -> None:
