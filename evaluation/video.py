@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from demo.errors import DemoError
+from demo.jsonio import replace_atomically
 from demo.sim import make_env
 
 CAMERA = "front"
@@ -76,12 +77,16 @@ def _grid(tiles: list[np.ndarray]) -> np.ndarray:
 def _write(path: Path, frames: np.ndarray, fps: float) -> None:
     import imageio.v3 as iio  # deferred: undeclared dependency (viser's), only for --video
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        if path.suffix.lower() == ".gif":
-            iio.imwrite(path, frames, extension=".gif", duration=1000.0 / fps, loop=0)
-        else:
-            iio.imwrite(path, frames, extension=".mp4", fps=fps)
+    def gif(tmp: Path) -> None:
+        # Pillow directly: imageio's GIF writer retries a failed write when it is garbage-collected (a traceback)
+        from PIL import Image  # deferred: only for --video
+
+        images = [Image.fromarray(f) for f in frames]
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=1000.0 / fps, loop=0)
+
+    try:  # staged and renamed: a full disk leaves no truncated video (and names this file)
+        replace_atomically(path, gif if path.suffix.lower() == ".gif" else
+                           lambda tmp: iio.imwrite(tmp, frames, extension=".mp4", fps=fps))
     except (ImportError, OSError, ValueError, RuntimeError) as exc:
         hint = " (MP4 needs imageio-ffmpeg or av installed; use a .gif path)" if path.suffix.lower() == ".mp4" else ""
         raise DemoError(path, f"cannot write the video: {str(exc).splitlines()[0][:160]}{hint}") from None

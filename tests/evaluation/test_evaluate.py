@@ -126,3 +126,26 @@ def test_a_task_failure_is_its_own_outcome() -> None:
     finally:
         env.close()
     assert not outcome.success and outcome.outcome == "collision"
+
+
+@pytest.mark.slow
+def test_video_on_a_full_disk_names_the_file_and_leaves_none(runs: dict[str, Path], tmp_path: Path) -> None:
+    """A file-size limit (RLIMIT_FSIZE) stands in for a full disk: the GIF is staged, so none is left behind."""
+    import os
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+
+    video = tmp_path / "v.gif"
+    done = subprocess.run([sys.executable, "-m", "demo", "eval", str(runs["bc"]), "--episodes", "2", "--video", str(video),
+                           "--video-size", "128"], capture_output=True, text=True, preexec_fn=limit,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode != 0 and lines[-1].startswith(f"error: {video}"), done.stderr
+    assert "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == []  # no truncated GIF, no staging file
