@@ -28,13 +28,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from demo.bench.common import machine
 from demo.collect.scripted import CollectConfig, collect_scripted
-from demo.policies import checkpoint as ckpt
 from demo.progress import Progress, Tick, or_silent
 
+STATE_FILE = "train_state.pt"  # demo.policies.checkpoint.STATE_FILE (that module imports torch)
 KINDS: dict[str, tuple[list[str], tuple[tuple[str, int, int], ...]]] = {
     # kind: (demo train flags, cameras of its data)
     "bc": ([], ()),
@@ -79,9 +77,17 @@ def run_to_end(command: list[str], kill_after: float | None = None) -> tuple[flo
     return time.perf_counter() - t0, 0
 
 
+def _train_state(run: Path) -> dict[str, Any]:
+    from demo.policies.checkpoint import load_train_state  # deferred: it imports torch
+
+    return load_train_state(run)
+
+
 def same_weights(a: Path, b: Path) -> bool:
     """Whether two runs' final train states hold the same policy and EMA tensors, bit for bit."""
-    sa, sb = ckpt.load_train_state(a), ckpt.load_train_state(b)
+    import torch  # deferred: demo --help imports this module and no torch
+
+    sa, sb = _train_state(a), _train_state(b)
     parts = [(sa["policy"], sb["policy"]), (sa.get("ema") or {}, sb.get("ema") or {})]
     return sa["step"] == sb["step"] and all(
         x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x) for x, y in parts)
@@ -92,9 +98,9 @@ def trial(c: ResumeConfig, kind: str, store: Path, reference: Path, out: Path, k
     shutil.rmtree(out, ignore_errors=True)  # a trial of an earlier run of the bench
     command = train_command(c, kind, store, out)
     _, code = run_to_end(command, kill_after=kill_at)
-    state = out / ckpt.STATE_FILE
+    state = out / STATE_FILE
     killed = code is None
-    saved = ckpt.load_train_state(out)["step"] if killed and state.is_file() else None
+    saved = _train_state(out)["step"] if killed and state.is_file() else None
     lost = time.time() - state.stat().st_mtime if killed and state.is_file() else None  # since the last save
     resumes = 0
     if killed:
