@@ -207,6 +207,9 @@ class CollectResult:
     frames: int
     seconds: float
     modes: dict[str, int]
+    # What the experts were asked to be: a deliberately imperfect operator or noise explains a low success rate.
+    operator: str = "expert"
+    noise: float = 0.0
 
     @property
     def success_rate(self) -> float:
@@ -233,8 +236,12 @@ def check_success(result: CollectResult, min_success: float | None = None) -> st
         raise DemoError(result.path, f"expert success {rate:.2f} < --min-success {min_success:g} "
                                      f"({result.episodes} episodes stay stored)")
     if rate < SUCCESS_WARNING:
-        return (f"{result.path}: expert success {rate:.2f} ({result.successes}/{result.episodes} episodes) is below "
-                f"{SUCCESS_WARNING:g}: check the robot config, task options, --operator and --noise")
+        head = f"{result.path}: expert success {rate:.2f} ({result.successes}/{result.episodes} episodes) is below {SUCCESS_WARNING:g}"
+        if result.operator != "expert" or result.noise > 0:  # asked for: not the robot's fault
+            chosen = " and ".join(([f"--operator {result.operator}"] if result.operator != "expert" else [])
+                                  + ([f"--noise {result.noise:g}"] if result.noise > 0 else []))
+            return f"{head}, as {chosen} may cause (the expert alone: --operator expert, no --noise)"
+        return f"{head}: check the robot config and the task options"
     return None
 
 
@@ -299,7 +306,8 @@ def collect_scripted(
                 if info.get("expert_mode"):
                     modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
                 report(collect_tick(config.task, done, config.episodes, successes, frames, time.perf_counter() - start))
-    return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes)
+    return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes,
+                         config.operator, config.noise)
 
 
 def _next_episode_index(store: EpisodeStore, config: CollectConfig) -> int:
