@@ -5,6 +5,7 @@ index, mask or boolean array, masks, checksums and the summary `demo info` shows
 
 from __future__ import annotations
 
+import hashlib
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -169,6 +170,15 @@ class StoreReading:
         return self._table.column(column).to_numpy(zero_copy_only=False).astype(bool)
 
     # ------------------------------------------------------------------ checksums
+    def content_hash(self) -> str:
+        """A fingerprint of what the store holds (every episode's length and checksum, the features), from the
+        episode table alone: a run records it, so a store replaced or grown under it is noticed."""
+        digest = hashlib.sha256(",".join(self.meta.features).encode())
+        if self.num_episodes:
+            digest.update(np.ascontiguousarray(self.episode_lengths).tobytes())
+            digest.update(np.asarray(self._table.column("crc32").to_pylist(), dtype=np.int64).tobytes())
+        return digest.hexdigest()[:16]
+
     def _checksum(self, data: dict[str, np.ndarray]) -> int:
         crc = 0
         for key in self.meta.features:

@@ -123,6 +123,7 @@ class TrainingRun(Run):
         seeds = np.concatenate([s.column("seed") if s.num_episodes else np.zeros(0, int) for s in stores])
         self.record = run_record(self.config, first.meta, data, learner, self.execution, self.command, algo_record, seeds)
         self.record["robot"] = records[0]
+        self.record["data"]["content"] = [s.content_hash() for s in stores]  # what was read, not only where
         if self.group is not None:  # --batch-size is per process
             self.record["data_parallel"] = {"processes": self.group.world,
                                             "global_batch_size": self.group.world * self.config.batch_size}
@@ -340,5 +341,9 @@ def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) ->
         differ.insert(0, "algo")
     if data_paths(previous) != data_paths(run):
         differ.append("data")
+    content = (previous.get("data") or {}).get("content")
+    if content and content != run["data"].get("content") and "dagger" not in run and not differ:  # DAgger's grows
+        raise DemoError(out, "its data changed since the run started (a store replaced or appended to): cannot "
+                             "resume on other data; train a new run")
     if differ:
         raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps and monitoring may change)")

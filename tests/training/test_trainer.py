@@ -133,3 +133,18 @@ def test_bench_resume_kills_and_resumes(tmp_path: Path) -> None:
                  "--out", str(tmp_path / "b"), "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     assert result["identical"] == 2 and len(result["trials"]) == 2
+
+
+def test_resume_refuses_data_replaced_under_the_run(tmp_path: Path, synthetic_store, tiny_bc_config) -> None:
+    data = synthetic_store(tmp_path / "d.zarr")
+    config = functools.partial(tiny_bc_config, steps=40, log_every=10, val_every=20)
+    train(config(data, tmp_path / "run"), stop_at=10)
+    first = ckpt.read_run(tmp_path / "run")["data"]["content"]
+    synthetic_store(tmp_path / "other.zarr", seed=1)
+    import shutil
+
+    shutil.rmtree(data)
+    shutil.move(tmp_path / "other.zarr", data)  # the same path, other episodes
+    with pytest.raises(DemoError, match="its data changed since the run started"):
+        train(config(data, tmp_path / "run"), resume=True)
+    assert len(first) == 1 and len(first[0]) == 16
