@@ -77,6 +77,7 @@ def import_lerobot(
     for c in columns:
         if c.feature not in info["features"]:
             raise DemoError(info_path, f"feature {c.feature!r} (for {c.key}) is not declared")
+    _check_declared_shapes(columns, info["features"], info_path)
     meta.provenance = [*meta.provenance, {"op": "import", "format": "lerobot", "from": str(root), "time": now()}]
     episode_columns = [n for n in episodes.column_names if n.startswith(EPISODE_COLUMN_PREFIX)]
     if extras is None:
@@ -187,6 +188,10 @@ def _episode_from_table(
         if c.kind == "state":
             if state is None:
                 state = column_to_numpy(ep.column(c.feature), where).reshape(length, -1)
+                declared = max(k.stop for k in columns if k.kind == "state")
+                if state.shape[1] != declared:  # a slice would silently drop (or misplace) values
+                    raise DemoError(where, f"episode {i} has {state.shape[1]} values a frame, info.json declares "
+                                           f"{declared}")
             values = state[:, c.start:c.stop]
         else:
             values = column_to_numpy(ep.column(c.feature), where)
@@ -296,6 +301,21 @@ def _flat_names(names: Any) -> list[str] | None:
         flat = [n for v in names.values() if isinstance(v, list) for n in v]
         return flat or None
     return None
+
+
+def _check_declared_shapes(columns: list[Column], features: dict[str, Any], info_path: Path) -> None:
+    """Every feature's declared ``shape`` holds the values the key map reads from it (``observation.state``: every
+    slice; an array: its frame), so that a dataset whose info.json was edited apart from its data is refused."""
+    state = [c for c in columns if c.kind == "state"]
+    for c in columns:
+        if c.kind in ("image", "video") or (c.kind == "state" and c is not state[0]):
+            continue
+        shape = features[c.feature].get("shape")
+        declared = math.prod(shape) if isinstance(shape, list) and all(isinstance(n, int) for n in shape) else None
+        wanted = max(k.stop for k in state) if c.kind == "state" else math.prod(c.shape)
+        if declared != wanted:
+            raise DemoError(info_path, f"feature {c.feature!r} declares shape {shape}, {declared} values a frame; the "
+                                       f"data is read as {wanted}")
 
 
 def _own_plan(extras: dict[str, Any], info_path: Path) -> tuple[list[Column], StoreMeta]:

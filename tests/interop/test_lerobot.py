@@ -329,7 +329,8 @@ def test_import_foreign_dataset(tmp_path: Path, locate: bool) -> None:
     assert any("language" in d for d in report.dropped) and any("float64" in d for d in report.dropped)
 
 
-@pytest.mark.parametrize("case", ["not_dataset", "v21", "mismatched", "corrupted", "total_frames", "stray_rows"])
+@pytest.mark.parametrize("case", ["not_dataset", "v21", "mismatched", "corrupted", "total_frames", "stray_rows",
+                                  "declared_shape"])
 def test_bad_input_one_line_error(case: str, sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     root = tmp_path / "lr"
     if case == "not_dataset":
@@ -357,6 +358,11 @@ def test_bad_input_one_line_error(case: str, sample: Path, tmp_path: Path, capsy
             path = root / "data/chunk-000/file-002.parquet"
             path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])  # a crash mid-write
             expected = (path, "corrupted parquet")
+        elif case == "declared_shape":  # info.json says one value fewer a frame than the data holds
+            info = json.loads(info_path.read_text())
+            info["features"]["observation.state"]["shape"][0] -= 1
+            info_path.write_text(json.dumps(info))
+            expected = (info_path, "declares shape")
         elif case == "total_frames":
             info = json.loads(info_path.read_text())
             info["total_frames"] += 1
