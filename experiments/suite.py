@@ -10,6 +10,10 @@ For every task of the suite (``metaworld-mt10``: Meta-World's MT10, ``metaworld-
 3. evaluate on ``episodes`` episodes whose seeds are disjoint from the demonstrations'
    (``demo eval``), success by the environment's own ``info["success"]``.
 
+With ``camera`` (``corner@64x64``) every task is observed from that camera plus the 4-D end-effector state
+(:class:`demo.sim.metaworld.CameraObservation`) and BC trains the image policy ``demo train`` picks for such
+a store.
+
 It writes one JSON (per task: the expert's success, BC's success with its 95% interval, times; the
 average; the configuration) and a figure (per-task success, expert and BC). Stores and runs stay
 under ``out``; a rerun reuses every finished task (same configuration).
@@ -48,6 +52,9 @@ class SuiteConfig:
     # default); MT50's handle-pull 50/50 against 0/50 (docs/environments.md).
     chunk: int = setting(1, "BC's chunk (1: single-step, ensembling off; > 1: ensembled chunks).")
     workers: int = setting(1, "Collection and evaluation processes.")
+    camera: str | None = setting(None, "Observe each task from this camera (NAME@WxH, e.g. corner@64x64) plus the 4-D "
+                                       "end-effector state, instead of the 39-D state.", metavar="NAME@WxH",
+                                 unset="the state")
 
     def check(self) -> None:
         if self.suite not in SUITES:
@@ -82,8 +89,10 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
     env = task_name(f"{adapter}:{task}")
     t0 = time.perf_counter()
     log(f"{task}: collect {c.demos}")
-    collected = collect_scripted(CollectConfig(task=env, episodes=c.demos, seed=c.seed, expert=adapter),
-                                 folder / "demos.zarr", workers=c.workers, overwrite=True)
+    options = {} if c.camera is None else {"camera": c.camera}
+    collected = collect_scripted(CollectConfig(task=env, episodes=c.demos, seed=c.seed, expert=adapter,
+                                               task_options=options), folder / "demos.zarr", workers=c.workers,
+                                 overwrite=True)
     t1 = time.perf_counter()
     log(f"{task}: train BC on {collected.successes} successful demos")
     given: dict[str, Any] = {"steps": c.steps, "chunk": c.chunk, "ensemble": c.chunk > 1}
@@ -114,7 +123,8 @@ def run(c: SuiteConfig, log: Callable[[str], None] = lambda text: None) -> dict[
     rows = [run_task(c, task, log) for task in tasks]
     mean = sum(r["bc"]["success_rate"] for r in rows) / len(rows)
     expert = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
-    figure = plot(rows, Path(c.out) / f"{c.suite}.png", title=f"{c.suite}: BC per task ({c.demos} demos, "
+    seen = "state" if c.camera is None else f"{c.camera} camera + EE state"
+    figure = plot(rows, Path(c.out) / f"{c.suite}.png", title=f"{c.suite}: BC per task from {seen} ({c.demos} demos, "
                                                               f"{c.episodes} eval episodes)")
     return {"bench": "suite", "suite": c.suite, "tasks": rows, "average_bc": mean, "average_expert": expert,
             "worst": [r["task"] for r in sorted(rows, key=lambda r: r["bc"]["success_rate"])[:5]],

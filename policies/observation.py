@@ -81,7 +81,8 @@ def proprio_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
 
 
 def default_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
-    """Images + proprioception for a store with cameras; otherwise the state keys below.
+    """Images + proprioception for a store with cameras (the low-dim keys where none is a robot's own);
+    otherwise the state keys below.
 
     The state keys: the low-dim keys without velocities (``*_vel``), plus positions relative to the end-effector.
 
@@ -91,7 +92,10 @@ def default_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
     MLP) adding ``obs.joint_vel`` took rollout success from 43% to 17%. ``--obs-keys all`` keeps them.
     """
     if image_keys(features):
-        return image_keys(features) + proprio_keys(features)
+        # A store of another tool's (a Gymnasium env, a LeRobot dataset) names no joints: its own low-dim
+        # state (obs.state) is its proprioception.
+        state = [k for k in low_dim_keys(features) if not k.endswith("_vel")]
+        return image_keys(features) + (proprio_keys(features) or state)
     keys = [k for k in low_dim_keys(features) if not k.endswith("_vel")] or low_dim_keys(features)
     ref = features.get(REFERENCE_KEY)
     if ref is not None and ref.shape == (3,):

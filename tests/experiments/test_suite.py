@@ -62,3 +62,19 @@ def test_suite_in_miniature(tmp_path: Path) -> None:
     assert main(["bench", "suite", "metaworld-mt10", "--tasks", "reach-v3", "--demos", "4", "--episodes", "3",
                  "--steps", "100", "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
     assert (tmp_path / "runs" / "reach-v3" / "result.json").stat().st_mtime_ns == stamp
+
+
+@pytest.mark.slow  # ~30 s: rendering and an image policy in miniature
+def test_suite_from_the_corner_camera_in_miniature(tmp_path: Path, one_line_error) -> None:
+    out = tmp_path / "suite.json"
+    assert main(["bench", "suite", "metaworld-mt10", "--tasks", "reach-v3", "--camera", "corner@32x32", "--demos", "3",
+                 "--episodes", "2", "--steps", "20", "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
+    (task,) = json.loads(out.read_text())["tasks"]
+    assert task["expert"]["successes"] == 3 and task["bc"]["episodes"] == 2
+    with EpisodeStore.open(tmp_path / "runs" / "reach-v3" / "demos.zarr") as store:
+        assert store.meta.features["obs.image_corner"].shape == (32, 32, 3)
+        assert store.meta.features["obs.state"].shape == (4,)  # the end effector and gripper: no object, no goal
+        image = store.read_episode(0, ["obs.image_corner"])["obs.image_corner"]
+        assert image.std() > 10  # a rendered scene, not a blank frame
+    one_line_error(["collect", "--env", "metaworld:reach-v3", "--env-opt", "camera=nowhere@32x32", "--expert",
+                    "metaworld", "--episodes", "1", "--out", str(tmp_path / "x.zarr")], "no camera 'nowhere'")

@@ -121,3 +121,11 @@ def test_a_difference_of_quaternions_is_the_relative_rotation() -> None:
         assert np.allclose(spec.vector(turned)[:12], batch[i, :12], atol=1e-5)
     with pytest.raises(DemoError, match="a quaternion and a vector do not subtract"):
         ObsSpec.from_features({**STATE_FEATURES, "obs.goal": FeatureSpec((4,))}, ["obs.ee_quat-obs.goal"])
+
+
+def test_a_foreign_store_with_cameras_reads_its_own_state_as_proprioception() -> None:
+    """A Gymnasium env's or a LeRobot dataset's store names no joints: its obs.state is the proprioception."""
+    features = {"obs.image_corner": FeatureSpec((8, 8, 3), "uint8", "camera image (RGB)", ""),
+                "obs.state": FeatureSpec((4,), "float32", "observation", "")}
+    spec = ObsSpec.from_features(features)
+    assert spec.images == ("obs.image_corner",) and spec.keys == ("obs.state",)
