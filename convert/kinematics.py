@@ -23,6 +23,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.sim.geometry import angle_between, quat_to_mat
+from demo.sim.robot_model import joint_limits
 
 _HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
 _SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -69,8 +70,7 @@ class Kinematics:
             self.joint_ids.append(j)
         self.qpos_adr = np.array([model.jnt_qposadr[j] for j in self.joint_ids], dtype=np.int64)
         self.dof_adr = np.array([model.jnt_dofadr[j] for j in self.joint_ids], dtype=np.int64)
-        self.lower = np.array([model.jnt_range[j, 0] if model.jnt_limited[j] else -np.inf for j in self.joint_ids])
-        self.upper = np.array([model.jnt_range[j, 1] if model.jnt_limited[j] else np.inf for j in self.joint_ids])
+        self.lower, self.upper = joint_limits(model, self.joint_ids).T
         self._steps = self._chain(where)
         self.site_pos = model.site_pos[site].astype(np.float64).copy()
         self.site_rot = _rot_or_none(model.site_quat[site])

@@ -56,6 +56,7 @@ from demo.gym.spaces import action_space, observation_space
 from demo.sim import make_env
 from demo.sim.env import CONTROL_HZ
 from demo.sim.render import parse_cameras
+from demo.sim.robot_model import joint_limits
 from demo.sim.rollout import HOLD_SUCCESS_S, SuccessHold
 
 RENDER_MODES = ("rgb_array",)
@@ -166,7 +167,4 @@ class DemoEnv(gymnasium.Env):
 
 def _joint_limits(sim: Any) -> np.ndarray:
     """[n_arm, 2] (rad): the arm joints' ranges, infinite where a joint is unlimited."""
-    m = sim.model
-    ids = [m.joint(j).id for j in sim.robot.arm_joints]
-    limited = m.jnt_limited[ids].astype(bool)[:, None]
-    return np.where(limited, m.jnt_range[ids], np.array([[-np.inf, np.inf]]))
+    return joint_limits(sim.model, [sim.model.joint(j).id for j in sim.robot.arm_joints])

@@ -38,6 +38,7 @@ from demo.sim.ik import ArmIK
 from demo.sim.numeric import clip
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
+from demo.sim.robot_model import joint_limits
 from demo.sim.scene import compile_scene, scene_spec
 from demo.sim.task import Expert, Task
 from demo.sim.tasks import TASKS
@@ -85,7 +86,7 @@ class Env:
         m, r = self.model, self.robot
         jids = [m.joint(j).id for j in r.arm_joints]
         self.arm_qadr = np.array([m.jnt_qposadr[j] for j in jids])
-        self._arm_range = m.jnt_range[jids]
+        self._arm_range = joint_limits(m, jids)  # unlimited joints are not clipped (continuous joints of 7-DOF arms)
         self.arm_dadr = np.array([m.jnt_dofadr[j] for j in jids])
         acts = [arm_actuator_for(m, j, name, r.config_path) for j, name in zip(jids, r.arm_joints)]
         self.arm_act = np.array(acts)

@@ -33,6 +33,7 @@ import numpy as np
 
 from demo.sim.numeric import clip
 from demo.sim.robot import RobotConfig
+from demo.sim.robot_model import joint_limits
 from demo.sim.scene import ik_spec
 
 try:  # mink's compiled SE(3) routines: what mink.FrameTask itself computes its residual with
@@ -71,10 +72,8 @@ class ArmIK:
         self.configuration = mink.Configuration(self.model)
         m = self.model
         self.qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in robot.arm_joints])
-        rng = np.array([m.jnt_range[m.joint(j).id] for j in robot.arm_joints])
-        limited = np.array([bool(m.jnt_limited[m.joint(j).id]) for j in robot.arm_joints])
-        self.q_lo = np.where(limited, rng[:, 0] + params.limit_margin, -np.inf)
-        self.q_hi = np.where(limited, rng[:, 1] - params.limit_margin, np.inf)
+        rng = joint_limits(m, [m.joint(j).id for j in robot.arm_joints])
+        self.q_lo, self.q_hi = rng[:, 0] + params.limit_margin, rng[:, 1] - params.limit_margin  # inf stays inf
 
         # The measured configuration lives in the configuration's own qpos (qpos0 until set_state).
         self.q = self.configuration.data.qpos
@@ -100,8 +99,7 @@ class ArmIK:
         self._range_gain = configuration_limit.gain
         self._range_lo = np.full(m.nv, -np.inf)
         self._range_hi = np.full(m.nv, np.inf)
-        self._range_lo[dof[limited]] = rng[limited, 0]
-        self._range_hi[dof[limited]] = rng[limited, 1]
+        self._range_lo[dof], self._range_hi[dof] = rng[:, 0], rng[:, 1]  # -inf..inf where unlimited
         self._max_step = np.full(m.nv, np.inf)
         self._max_step[dof] = np.asarray(robot.max_joint_velocity, dtype=float) * self.dt
         self._neg_max_step = -self._max_step

@@ -208,6 +208,14 @@ def _check_gripper(model: mujoco.MjModel, act: int, name: str, rng: tuple[float,
                                        f"write gripper_range = [open, closed] within it")
 
 
+def joint_limits(model: mujoco.MjModel, joint_ids: list[int] | np.ndarray) -> np.ndarray:
+    """[n, 2] ranges of the joints (rad or m), -inf..inf where a joint is unlimited: MuJoCo keeps an unlimited
+    joint's ``jnt_range`` at [0, 0], and clipping to it would pin the joint at 0."""
+    ids = np.asarray(joint_ids, dtype=int)
+    limited = model.jnt_limited[ids].astype(bool)[:, None]
+    return np.where(limited, model.jnt_range[ids], np.array([[-np.inf, np.inf]]))
+
+
 def is_descendant(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
     """Whether ``body`` lies strictly below ``ancestor`` in the kinematic tree."""
     while body > 0:
