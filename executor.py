@@ -8,14 +8,17 @@ job, and how often, changes nothing: results come back in job order and the sing
 process commits the same bytes whatever the executor and the number of workers.
 
 - ``process``: ``workers`` processes of this machine, a ``spawn`` multiprocessing pool (no inherited
-  MuJoCo/GL/torch state; the same behaviour on every OS).
+  MuJoCo/GL/torch state; the same behaviour on every OS). Ctrl-C (SIGINT to the process group) and
+  SIGTERM interrupt this process: the workers ignore SIGINT and end quietly with the pool, and what
+  the caller committed stays; a worker whose parent was killed outright ends quietly too.
 - ``ray``: ``workers`` Ray actors (one CPU each) on the Ray cluster at ``address``, else on a local
-  one started here with ``workers`` CPUs and shut down afterwards. An actor that dies mid-job (its
-  process killed, its node lost) is replaced and the jobs it held are run again, each at most
-  ``retries`` more times; nothing of a job is committed before its whole result is back, so a
-  failure never leaves half an episode. Ray is an optional dependency (``pip install -e
-  '.[ray]'``), imported only on this path. On a remote cluster the workers need ``demo`` installed
-  and the files ``init`` reads (a robot config, a run directory) at the same paths.
+  one started here with ``workers`` CPUs, reachable from this machine alone (127.0.0.1), and shut
+  down afterwards. An actor that dies mid-job (its process killed, its node lost) is replaced and
+  the jobs it held are run again, each at most ``retries`` more times; nothing of a job is
+  committed before its whole result is back, so a failure never leaves half an episode. Ray is an
+  optional dependency (``pip install -e '.[ray]'``), imported only on this path. On a remote
+  cluster the workers need ``demo`` installed and the files ``init`` reads (a robot config, a run
+  directory) at the same paths.
 
 An exception raised by ``init`` or ``run`` (a :class:`~demo.errors.DemoError`, say) is raised again
 in this process as itself; a job that fails that way is never retried.
@@ -23,11 +26,16 @@ in this process as itself; a job that fails that way is never retried.
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
@@ -36,7 +44,9 @@ from demo.errors import DemoError
 
 KINDS = ("process", "ray")
 RAY_INSTALL = "Ray is not installed: pip install -e '.[ray]' (or pip install 'ray>=2.40')"
+LOOPBACK = "127.0.0.1"  # where a local Ray started here listens
 IN_FLIGHT = 2  # jobs queued per Ray actor: the next one is there when the current one ends
+PR_SET_PDEATHSIG = 1  # Linux prctl(2): the signal a process gets when its parent dies
 LOOKAHEAD = 32  # at most this many jobs (or 4 per worker) run ahead of the next result to commit
 
 
@@ -103,14 +113,41 @@ def session(config: ExecutorConfig) -> Iterator[None]:
         yield
         return
     try:
-        ray.init(address=config.address, num_cpus=None if config.address else config.workers,
-                 include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+        local = not config.address
+        with _loopback_only() if local else nullcontext():
+            ray.init(address=config.address, num_cpus=config.workers if local else None,
+                     _node_ip_address=LOOPBACK if local else None, include_dashboard=False, log_to_driver=False,
+                     logging_level=logging.ERROR)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise DemoError(config.address or "--executor ray", f"cannot start or reach Ray ({_first_line(exc)})") from None
     try:
         yield
     finally:
         ray.shutdown()
+
+
+@contextmanager
+def _loopback_only() -> Iterator[None]:
+    """A local Ray started in this block is reachable from this machine alone (its GCS, raylet and
+    workers listen on 127.0.0.1), not from the network. On Linux, Ray takes a node's address from its
+    default route and its servers then listen on every interface: ``ray.init`` even turns a loopback
+    ``_node_ip_address`` into that address, unless it treats the machine as no cluster's (as on
+    Windows and macOS, where ``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER`` is off). That switch is read from
+    Ray's constants when the node starts; it is set off for the start only (the node keeps its
+    address), so that a later connection to a real cluster is unchanged."""
+    try:
+        import ray._private.ray_constants as constants  # deferred: optional dependency (ray)
+    except ImportError:
+        constants = None
+    if not hasattr(constants, "ENABLE_RAY_CLUSTER"):  # another Ray: _node_ip_address is all there is
+        yield
+        return
+    previous = constants.ENABLE_RAY_CLUSTER
+    constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        constants.ENABLE_RAY_CLUSTER = previous
 
 
 # ---------------------------------------------------------------------------------- in a worker
@@ -125,6 +162,40 @@ def _start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
         init(*init_args)
     except Exception as exc:
         _init_error = exc
+
+
+def _pool_start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
+    """A pool worker's start: Ctrl-C reaches the whole process group, but only the parent acts on it
+    (it terminates the pool, and SIGTERM ends a worker without a word). A worker interrupted itself
+    printed a traceback, and one interrupted while sending a result left a torn message in the pipe
+    that hung the parent's pool shutdown. (Workers the pool starts at its creation inherit SIGINT
+    ignored already; this covers one it starts later, to replace a worker that died.)"""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
+    _start(init, init_args)
+
+
+def _exit_with_parent() -> None:
+    """End this worker, quietly, when its parent is gone (killed outright, it terminated no pool):
+    sending its next result failed with a BrokenPipeError traceback. On Linux the kernel ends it at
+    once (SIGTERM, not handled: no word; it is sent when the parent's thread that started the worker
+    ends, and the pool starts workers from the thread that runs the whole map, or from its own
+    thread, which outlives them); elsewhere, and should that fail, a thread waiting on the parent
+    does, as soon as it runs."""
+    parent = mp.parent_process()
+    if parent is None:
+        return
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        except (OSError, AttributeError):
+            pass
+    threading.Thread(target=_wait_then_exit, args=(parent,), name="demo-parent-watch", daemon=True).start()
+
+
+def _wait_then_exit(parent: Any) -> None:
+    parent.join()  # returns once the parent process is gone (at once if it already is)
+    os._exit(0)
 
 
 def _call(run: Callable[[Any], Any], job: Any) -> Any:
@@ -148,21 +219,58 @@ class _RayWorker:
 def _process_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: list[Any],
                  workers: int) -> Iterator[list[Any]]:
     ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state (nor CUDA)
-    pool = ctx.Pool(workers, initializer=_start, initargs=(init, tuple(init_args)))
+    with _terminate_interrupts():
+        # SIGINT ignored while the workers start is inherited through exec (and Python leaves it so):
+        # that covers a worker's imports before _pool_start runs. A Ctrl-C in these few milliseconds
+        # is lost.
+        with _handler(signal.SIGINT, signal.SIG_IGN):
+            pool = ctx.Pool(workers, initializer=_pool_start, initargs=(init, tuple(init_args)))
+        try:
+            results = pool.imap(partial(_call, run), jobs, chunksize=1)
+            for first in results:
+                ready = [first]
+                while True:
+                    try:
+                        ready.append(results.next(timeout=0))
+                    except (mp.TimeoutError, StopIteration):
+                        break
+                yield ready
+            pool.close()
+        finally:
+            pool.terminate()
+            pool.join()
+
+
+@contextmanager
+def _handler(signum: int, handler: Any) -> Iterator[None]:
+    """``handler`` for ``signum`` while the block runs. Only the main thread may set handlers:
+    elsewhere, and where Python does not own the signal (a handler set from C), nothing changes."""
+    previous = signal.getsignal(signum)
+    if threading.current_thread() is not threading.main_thread() or previous is None:
+        yield
+        return
+    signal.signal(signum, handler)
     try:
-        results = pool.imap(partial(_call, run), jobs, chunksize=1)
-        for first in results:
-            ready = [first]
-            while True:
-                try:
-                    ready.append(results.next(timeout=0))
-                except (mp.TimeoutError, StopIteration):
-                    break
-            yield ready
-        pool.close()
+        yield
     finally:
-        pool.terminate()
-        pool.join()
+        if threading.current_thread() is threading.main_thread():  # a generator may be closed elsewhere
+            signal.signal(signum, previous)
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def _terminate_interrupts() -> Iterator[None]:
+    """SIGTERM ends this process as Ctrl-C does while worker processes run (unless a handler of its
+    own is set): the pool is shut down and the caller's committed work kept. Killed outright, the
+    process left its pool's semaphores to the resource tracker, which warned of them as leaked."""
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    with _handler(signal.SIGTERM, _interrupt):
+        yield
 
 
 # ---------------------------------------------------------------------------------- ray

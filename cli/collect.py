@@ -5,12 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.text import Text
 
 from demo.cli.main import app
 from demo.cli.options import (address_option, env_opt_option, env_option, executor_option, json_option, overwrite_option,
                               parse_env_opts, robot_option)
-from demo.cli.output import err_console, kv_table, report_console, write_json
+from demo.cli.output import kv_table, report_console, warn, write_json
 from demo.cli.progress import bars
 from demo.collect.kinesthetic import collect_kinesthetic
 from demo.collect.scripted import CollectConfig, check_success, collect_scripted
@@ -131,4 +130,4 @@ def collect(
     if source == "scripted":
         warning = check_success(result, min_success)  # raises below --min-success
         if warning:
-            err_console.print(Text.assemble(("warning:", "bold yellow"), " ", warning), highlight=False, soft_wrap=True)
+            warn(warning)

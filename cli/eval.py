@@ -11,8 +11,11 @@ from demo.cli.main import app
 from demo.cli.options import (address_option, device_option, env_opt_option, env_option, executor_option, json_option,
                               parse_env_opts, robot_option, run_argument)
 from demo.errors import DemoError
+from demo.seeds import eval_seeds
 from demo.sim.foreign import task_name
-from demo.cli.output import kv_table, report_console, table, write_json
+from demo.store import EpisodeStore
+from demo.store.location import store_path
+from demo.cli.output import kv_table, report_console, table, warn, write_json
 from demo.cli.progress import bars
 
 
@@ -62,8 +65,12 @@ def eval_(
         execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
         record=record,
     )
+    again = _recorded_before(record, run, seed, episodes) if record is not None else 0  # before this run appends
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
         result = evaluate(config, progress=progress)
+    if again:  # told once the run succeeded: a failed command prints its one error line alone
+        warn(f"{record} already held {again} episode(s) of {run} with these seeds (--seed {seed}): they were "
+             "recorded again (another --seed gives new episodes)")
     lo, hi = result["ci95"]
     failures = ", ".join(f"{k}: {v}" for k, v in sorted(result["failures"].items())) or "none"
     rows = [
@@ -89,3 +96,20 @@ def eval_(
              ", ".join(f"{k}: {v}" for k, v in sorted(r["failures"].items())) or "none")
             for name, r in result["per_task"].items()]))
     write_json(result, json_out)
+
+
+def _recorded_before(record: str, run: Path, seed: int, episodes: int) -> int:
+    """How many episodes the store at ``record`` holds from ``run`` (its ``run`` column, as evaluation
+    writes it) reset to this evaluation's seeds: a rerun appends the same rollouts again. 0 where
+    there is no store yet, or none of evaluation's; evaluation then says what is wrong, if anything.
+    (Of a task set's seeds, the first ``episodes`` are checked: a rerun repeats those too.)"""
+    path = store_path(record)
+    if not path.exists():
+        return 0
+    try:
+        with EpisodeStore.open(path) as store:
+            runs, seeds = store.column("run"), store.column("seed")
+    except DemoError:
+        return 0
+    ours = set(eval_seeds(seed, episodes))
+    return sum(r == str(run) and int(s) in ours for r, s in zip(runs, seeds))

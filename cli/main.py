@@ -30,6 +30,19 @@ from demo import __version__
 from demo.cli.output import err_console
 from demo.errors import DemoError, one_line, os_error
 
+_option_type = typer.core.TyperOption.display_type_rich
+
+
+def _flag_type(self: typer.core.TyperOption, ctx: Any) -> str | None:
+    """The type shown after an option in the help: none for a flag, which takes no value (typer >= 0.29
+    shows every flag, --help and --version included, as taking a ``<bool>``; its plain help does not)."""
+    if self.is_flag or self.count:
+        return None
+    return _option_type(self, ctx)
+
+
+typer.core.TyperOption.display_type_rich = _flag_type  # type: ignore[method-assign]
+
 app = typer.Typer(
     name="demo",
     help="Robot learning from demonstration in MuJoCo: collect, curate, convert, train, eval.",

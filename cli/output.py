@@ -9,11 +9,18 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from demo import jsonio
 
 console = Console()
 err_console = Console(stderr=True)
+
+
+def warn(message: str) -> None:
+    """``warning: MESSAGE`` on stderr, as one line whatever the terminal width (a Text, not markup:
+    a path may hold brackets that rich would eat)."""
+    err_console.print(Text.assemble(("warning:", "bold yellow"), " ", message), highlight=False, soft_wrap=True)
 
 
 def write_json(obj: Any, path: str | Path | None) -> None:

@@ -18,8 +18,10 @@ the recording's first configuration (the objects come from the seed: a person st
 from wherever the arm was), and the command of frame ``k`` is the recorded configuration one
 control step later, so the position servos reproduce the recorded motion rather than lag it by
 a step. Joint values outside the robot's joint range are clipped for execution and flagged in
-``info.ik_ok`` (never silently): the recording does not fit this robot there. ``info.ee_target``
-is the EE pose of the commanded configuration (MuJoCo forward kinematics).
+``info.ik_ok`` (never silently): the recording does not fit this robot there. A value more than the
+range's own width beyond it (1e308, say) is no reading of that joint: the file is refused, naming
+the line and the column. ``info.ee_target`` is the EE pose of the commanded configuration (MuJoCo
+forward kinematics).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -46,9 +49,10 @@ from demo.collect.human import (
 from demo.collect.retarget import ArmFK
 from demo.errors import DemoError
 from demo.progress import Progress
-from demo.sim import load_robot
+from demo.sim import RobotConfig, load_robot
 
 LIMIT_TOL = 1e-3  # rad beyond a joint limit that still counts as inside (encoder noise)
+FAR_BEYOND = 1.0  # a value this many range widths beyond a joint's range is refused, not clipped
 
 
 @dataclass
@@ -61,8 +65,18 @@ class JointTrack:
     gripper: np.ndarray  # (N,) 0 open .. 1 closed
 
 
-def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...]) -> list[JointTrack]:
-    """Read and validate a joint CSV; any problem is a DemoError naming ``path:line``."""
+def joint_ranges(robot: RobotConfig) -> dict[str, tuple[float, float]]:
+    """``(low, high)`` of each limited arm joint (rad, or m for a slide), from the robot's model."""
+    model = robot.spec().compile()
+    ids = {name: model.joint(name).id for name in robot.arm_joints}
+    return {name: (float(model.jnt_range[j, 0]), float(model.jnt_range[j, 1]))
+            for name, j in ids.items() if model.jnt_limited[j]}
+
+
+def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
+                    ranges: Mapping[str, tuple[float, float]] | None = None) -> list[JointTrack]:
+    """Read and validate a joint CSV; any problem is a DemoError naming ``path:line``. ``ranges``
+    (:func:`joint_ranges`): a joint value far outside its joint's range is one."""
     path = Path(path)
     if not path.is_file():
         raise DemoError(path, "joint file not found")
@@ -106,7 +120,7 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...]) -> list[Joint
             current, rows = (number, seed), []
         t = _number(where, "t", cells[columns["t"]])
         check_time(where, t, rows[-1][0] if rows else None, rows[0][0] if rows else None)
-        q = np.array([_number(where, j, cells[columns[j]]) for j in arm_joints])
+        q = np.array([_joint(where, j, cells[columns[j]], (ranges or {}).get(j)) for j in arm_joints])
         g = _number(where, "gripper", cells[columns["gripper"]])
         if not 0.0 <= g <= 1.0:
             raise DemoError(where, f"'gripper' must be within 0 (open) .. 1 (closed), got {g:g}")
@@ -141,6 +155,19 @@ def _number(where: str, name: str, raw: str) -> float:
         raise DemoError(where, f"'{name}' is not a number: {raw!r}") from None
     if not math.isfinite(v):
         raise DemoError(where, f"'{name}' is not finite ({raw})")
+    return v
+
+
+def _joint(where: str, name: str, raw: str, limits: tuple[float, float] | None) -> float:
+    """A joint value: a little outside its range is the robot's to clip and flag (a recording from
+    a slightly different arm); more than ``FAR_BEYOND`` widths beyond it is no reading of the joint."""
+    v = _number(where, name, raw)
+    if limits is not None:
+        lo, hi = limits
+        margin = FAR_BEYOND * (hi - lo)
+        if not lo - margin <= v <= hi + margin:
+            raise DemoError(where, f"'{name}' = {v:g} is far outside the joint's range [{lo:g}, {hi:g}]: no reading "
+                                   "of this joint (values near the range are clipped and flagged)")
     return v
 
 
@@ -191,8 +218,8 @@ def collect_kinesthetic(
     progress: Progress | None = None,
 ) -> HumanCollectResult:
     """Play every episode of a joint CSV through the simulator into the store at ``out``."""
-    arm_joints = load_robot(robot).arm_joints
-    tracks = parse_joint_csv(input_csv, arm_joints)
+    robot_config = load_robot(robot)
+    tracks = parse_joint_csv(input_csv, robot_config.arm_joints, joint_ranges(robot_config))
     config = HumanConfig(
         task=task, source="kinesthetic", input=str(input_csv), seed=seed, operator=operator, robot=robot,
         task_options=dict(task_options or {}), cameras=tuple(cameras), settings={"lookahead_steps": 1},

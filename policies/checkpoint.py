@@ -145,11 +145,36 @@ _SECTIONS: dict[str, tuple[type, ...]] = {"policy": (dict,), "task": (dict,), "r
                                           "robots": (list,), "data": (dict, type(None)), "train": (dict, type(None))}
 
 
+# Counts of a run record (the chunk, the observation history, ...): whole numbers from 1 to MAX_COUNT.
+# Read with int(), 1e9 or 2.7 would pass as given.
+MAX_COUNT = 10_000
+_COUNTS: tuple[tuple[str, ...], ...] = (
+    ("policy", "spec", "horizon"), ("policy", "spec", "n_obs"), ("policy", "execution", "execute"),
+    ("policy", "execution", "candidates"), ("train", "chunk"), ("train", "n_obs"), ("train", "execute"),
+    ("train", "candidates"),
+)
+
+
 def _check_sections(run: dict[str, Any], path: Path) -> None:
     """A run directory is untrusted: each section is of its kind before anything reads into it."""
     for key, kinds in _SECTIONS.items():
         if key in run and not isinstance(run[key], kinds):
             raise DemoError(path, f"'{key}' is a {type(run[key]).__name__}, not a JSON object")
+    counts: dict[str, int] = {}
+    for keys in _COUNTS:
+        section = run
+        for key in keys[:-1]:  # a section that is no object is the reader's to refuse
+            section = section.get(key) if isinstance(section, dict) else None
+        value = section.get(keys[-1]) if isinstance(section, dict) else None
+        if value is None:  # absent (the reader's default), or a training setting left to its default
+            continue
+        name = ".".join(keys)
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_COUNT:
+            raise DemoError(path, f"'{name}' must be a whole number from 1 to {MAX_COUNT:_}, got {value!r}")
+        counts[name] = value
+    for execute, chunk in (("policy.execution.execute", "policy.spec.horizon"), ("train.execute", "train.chunk")):
+        if execute in counts and chunk in counts and counts[execute] > counts[chunk]:
+            raise DemoError(path, f"'{execute}' ({counts[execute]}) exceeds the chunk '{chunk}' ({counts[chunk]})")
     task = run.get("task") or {}
     if not isinstance(task.get("name", ""), str) or not isinstance(task.get("options") or {}, dict):
         raise DemoError(path, "'task' must name the task (a string) and its options (an object)")

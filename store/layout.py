@@ -27,6 +27,8 @@ from demo.store.spec import FORMAT_NAME, StoreMeta
 from demo.store.zarr_io import gather
 
 TABLE_FILE = "episodes.parquet"
+# Why a store is not created at a path something is in the way of (demo.store.output adds --append).
+EXISTS = "already exists (pass --overwrite to replace it, or choose another --out)"
 IMAGE_PREFIX = "obs.image_"  # camera images: the only compressed features
 CHUNK_BYTES = 64 * 1024  # small enough that an append re-compresses little, big enough for fast reads
 
@@ -53,7 +55,7 @@ def check_replaceable(path: StorePath, overwrite: bool) -> None:
     if not os.path.lexists(path):
         return
     if not overwrite:
-        raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
+        raise DemoError(path, EXISTS)
     if path.is_symlink() or not path.is_dir() or not ((path / "zarr.json").exists() or (path / TABLE_FILE).exists()):
         raise DemoError(path, "exists and is not a demo store; refusing to overwrite it")
 
@@ -67,7 +69,7 @@ def _clear_remote(path: Remote, overwrite: bool) -> None:
     table = path / TABLE_FILE
     if table.exists():
         if not overwrite:
-            raise DemoError(path, "already exists (pass --overwrite to replace it, or choose another --out)")
+            raise DemoError(path, EXISTS)
     elif not _unfinished_store(path):
         raise DemoError(path, "already exists and is not a demo store; refusing to " +
                         ("overwrite it" if overwrite else "write there"))

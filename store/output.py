@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from demo.errors import DemoError
 from demo.store.episode_store import EpisodeStore, StoreMeta
+from demo.store.layout import EXISTS
 from demo.store.location import StorePath, store_path
 from demo.store.robot_files import same_robot
 
@@ -41,4 +42,11 @@ def open_output(out: str | StorePath, meta: StoreMeta, append: bool, overwrite: 
             raise DemoError(out, f"cannot append: the store records a different {', '.join(mismatch)}")
         store.update_meta(provenance=[*have.provenance, *meta.provenance])
         return store
-    return EpisodeStore.create(out, meta, overwrite=overwrite)
+    try:
+        return EpisodeStore.create(out, meta, overwrite=overwrite)
+    except DemoError as exc:
+        if exc.problem != EXISTS:
+            raise
+        # A recording command can add to what is there: say so (the store layer knows no --append).
+        raise DemoError(exc.where, "already exists (pass --append to add episodes to it, --overwrite to replace it, "
+                                   "or choose another --out)", exc.exit_code) from None

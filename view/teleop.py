@@ -91,6 +91,7 @@ class TeleopSession:
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self.store = None
+        self.saved = 0  # before the store opens: close() reads it
         self.server = None
         self._thread: threading.Thread | None = None
         try:
@@ -100,7 +101,6 @@ class TeleopSession:
             if config.mode == "kinesthetic":
                 self._soften_arm(config.soft_gain)
             self.episode_index = 0
-            self.saved = 0
             self.grip = 0.0
             self.recording = False
             self.moved = False  # the hand moved or the gripper was used since Start: something to save
@@ -362,7 +362,12 @@ class TeleopSession:
                 self.server.stop()
             self.server = None
         if self.store is not None:
-            self.store.close()
+            # Stopped before a first episode, a store created here goes (abandon: nothing published;
+            # a store appended to keeps what it held): a collection is invisible until it records.
+            if self.saved:
+                self.store.close()
+            else:
+                self.store.abandon()
             self.store = None
         self.env.close()
 

@@ -107,7 +107,8 @@ def export_robomimic(
     }
     frames = 0
     with staged_output(out, overwrite=overwrite, looks_like=_is_hdf5, kind="robomimic HDF5 file", is_dir=False) as tmp:
-        with open(tmp, "wb", buffering=0) as raw, _WriteErrorKept(raw) as sink, h5py.File(sink, "w") as f:
+        # read-write: once the file grows, libhdf5 reads back what it wrote (a write-only file fails then)
+        with open(tmp, "w+b", buffering=0) as raw, _WriteErrorKept(raw) as sink, h5py.File(sink, "w") as f:
             data = f.create_group("data")
             for new_index, src_index in enumerate(track(chosen, len(chosen), "export robomimic", progress)):
                 ep = src.read_episode(int(src_index))

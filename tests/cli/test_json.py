@@ -102,6 +102,8 @@ SKIPS = {
                  "on one",
     "irl train": "trains a PPO inner loop per algorithm; "
                  "tests/rl/test_irl.py runs each algorithm in miniature with --json FILE",
+    "bench resume": "kills and resumes real demo train processes (~40 s in miniature); "
+                    "tests/training/test_trainer.py runs it with --json FILE and reads it",
     "bench peer-gail": "needs the imitation library, installed in its own venv only (README); "
                        "tests/experiments/test_peer_gail.py runs it "
                        "in miniature there with --json FILE",

@@ -85,6 +85,17 @@ def test_one_style_for_every_command() -> None:
 
 
 
+def test_flags_show_no_value_type_in_the_help(capsys: pytest.CaptureFixture[str]) -> None:
+    """Before, every flag read `<bool>` in the help (`--version <bool>` included), as if it took a value."""
+    for argv in (["--help"], ["collect", "--help"]):
+        capsys.readouterr()
+        assert main(argv) == 0
+        shown = capsys.readouterr().out
+        assert "--version" in shown or "--append" in shown
+        assert "<bool>" not in shown, shown
+    assert "<int>" in shown  # an option that takes a value still shows its type
+
+
 def test_help_keeps_brackets_that_rich_would_read_as_markup() -> None:
     """`--executor`'s help names the extra to install, `.[ray]`, which rich markup would swallow."""
     shown = subprocess.run([sys.executable, "-m", "demo", "eval", "--help"], capture_output=True, text=True,

@@ -87,6 +87,10 @@ def test_out_of_range_joints_are_flagged_not_silently_clipped(tmp_path: Path) ->
         (_row(0.03, g=2.0), "within 0 (open) .. 1 (closed)"),
         ("0.05,1,2", "expected 9 values"),
         (_row(0.05).replace("-1.6", "abc"), "'joint4' is not a number"),
+        # finite, but no reading of the joint (before, accepted and clipped)
+        (_row(0.05, [0.0, 0.0, 0.0, -1.6, 1e308, 1.6, 0.8]), "'joint5' = 1e+308 is far outside the joint's range"),
+        (_row(0.05, [0.0, 0.0, 0.0, 3.5, 0.0, 1.6, 0.8]),
+         "'joint4' = 3.5 is far outside the joint's range [-3.0718, -0.0698]"),
     ],
 )
 def test_bad_rows_name_file_and_line_and_write_nothing(tmp_path: Path, bad: str, message: str) -> None:

@@ -225,3 +225,10 @@ def test_buttons_enable_only_what_the_state_allows(tmp_path: Path) -> None:
         session.close()
     with EpisodeStore.open(out) as store:
         assert store.num_episodes == 1 and store.episode_lengths[0] == 1
+
+
+def test_stopped_before_any_episode_leaves_no_store(tmp_path: Path) -> None:
+    """A collection is invisible before its first episode: before, an empty store was left at --out."""
+    out = tmp_path / "t.zarr"
+    TeleopSession(TeleopConfig(mode="vr", task="reach", out=str(out), port=0), run_thread=False).close()
+    assert not out.exists() and [p for p in tmp_path.iterdir() if not p.name.endswith(".lock")] == []

@@ -7,6 +7,7 @@ One local Ray (2 CPUs) serves the module: starting one costs seconds.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -161,6 +162,21 @@ def test_bench_collect_executor_ray_compares_with_processes_in_one_run(ray_clust
     assert r["same_bytes"] and r["workers"] == 2 and len(r["samples"]["ray"]) == len(r["samples"]["process"]) == 1
     assert r["ray_to_process"] == pytest.approx(r["ray"]["frames_per_s"] / r["process"]["frames_per_s"])
     assert r["ray"]["executor"] == "ray" and r["process"]["executor"] == "process" and r["ray"]["frames"] > 0
+
+
+def test_a_local_ray_started_here_listens_on_the_loopback_only() -> None:
+    """Without --address the local Ray is this machine's alone: before, its servers listened on every
+    interface (Ray takes the address of the default route, and turns a loopback one asked for into it)."""
+    pytest.importorskip("ray", reason="Ray is not installed (pip install -e '.[ray]')")
+    script = ("import json, ray\n"  # a process of its own: this module's Ray must not be running
+              "from demo.executor import ExecutorConfig, session\n"
+              "with session(ExecutorConfig('ray', 1)):\n"
+              "    print(json.dumps([[n['NodeManagerAddress'] for n in ray.nodes()], ray.util.get_node_ip_address(),\n"
+              "                      ray.get_runtime_context().gcs_address]))\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    nodes, ip, gcs = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert nodes == ["127.0.0.1"] and ip == "127.0.0.1" and gcs.startswith("127.0.0.1:")
 
 
 def test_without_ray_executor_ray_fails_in_one_line(tmp_path: Path) -> None:

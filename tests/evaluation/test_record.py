@@ -83,6 +83,24 @@ def test_record_refuses_a_store_of_another_task_before_any_rollout(run: Path, tm
     assert json.loads(capfd.readouterr().out)["record"]["episodes"] == 2
 
 
+def test_a_rerun_that_records_the_same_seeds_again_warns(run: Path, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """Before, `eval --record` rerun with the same --seed appended the same rollouts without a word."""
+    store = tmp_path / "again.zarr"
+    argv = ["eval", str(run), "--episodes", "1", "--record", str(store)]
+    capsys.readouterr()
+    assert main([*argv, "--seed", "5"]) == 0
+    assert "warning" not in capsys.readouterr().err  # a new store
+    assert main([*argv, "--seed", "5"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {store} already held 1 episode(s) of {run} with these seeds (--seed 5): they "
+                        "were recorded again (another --seed gives new episodes)"]
+    assert main([*argv, "--seed", "6"]) == 0
+    assert "warning" not in capsys.readouterr().err  # other seeds: new episodes
+    with EpisodeStore.open(store) as s:
+        assert s.column("seed").tolist() == eval_seeds(5, 1) * 2 + eval_seeds(6, 1)
+
+
 def test_hg_dagger_marks_its_interventions_per_frame(reach_demos, tmp_path: Path) -> None:
     tc = TrainConfig(data=str(reach_demos(8)), out=str(tmp_path / "hg"), steps=60, batch_size=32,
                      policy={"hidden": (32,)}, log_every=30, val_every=30)

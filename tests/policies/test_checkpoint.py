@@ -112,3 +112,29 @@ def test_bad_run_directories_fail_clearly(run_dir: Path, tmp_path: Path) -> None
     (bad / ckpt.POLICY_FILE).write_bytes((run_dir / ckpt.POLICY_FILE).read_bytes())
     with pytest.raises(DemoError, match="does not match"):
         ckpt.load_bundle(bad)
+
+
+@pytest.mark.parametrize("keys, value, needle", [
+    (("train", "chunk"), 1e9, "'train.chunk' must be a whole number from 1 to 10_000, got 1000000000.0"),
+    (("train", "chunk"), 2.5, "'train.chunk' must be a whole number from 1 to 10_000, got 2.5"),
+    (("policy", "spec", "horizon"), 0, "'policy.spec.horizon' must be a whole number from 1 to 10_000, got 0"),
+    (("policy", "spec", "n_obs"), True, "'policy.spec.n_obs' must be a whole number from 1 to 10_000, got True"),
+    (("policy", "execution", "execute"), 5, "'policy.execution.execute' (5) exceeds the chunk 'policy.spec.horizon' (4)"),
+], ids=["chunk-1e9", "chunk-2.5", "horizon-0", "n_obs-bool", "execute-past-chunk"])
+def test_run_json_counts_out_of_range_are_refused_naming_the_key(run_dir: Path, tmp_path: Path, one_line_error,
+                                                                 keys: tuple[str, ...], value: object,
+                                                                 needle: str) -> None:
+    """Before, a chunk of 1e9 (read with int(), or not read by eval at all) evaluated normally."""
+    bad = tmp_path / "run"
+    bad.mkdir()
+    run = json.loads((run_dir / ckpt.RUN_FILE).read_text())
+    section = run
+    for key in keys[:-1]:
+        section = section[key]
+    section[keys[-1]] = value
+    (bad / ckpt.RUN_FILE).write_text(json.dumps(run))
+    (bad / ckpt.POLICY_FILE).write_bytes((run_dir / ckpt.POLICY_FILE).read_bytes())
+    with pytest.raises(DemoError) as caught:
+        ckpt.load_bundle(bad)
+    assert caught.value.where == str(bad / ckpt.RUN_FILE) and caught.value.problem == needle
+    one_line_error(["eval", str(bad), "--episodes", "1"], f"{bad / ckpt.RUN_FILE}: {needle}")
