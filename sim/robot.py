@@ -18,6 +18,8 @@ A robot config is a small TOML file (paths relative to it)::
     home = [0, 0, 0, -1.57, 0, 1.57, -0.785]  # home arm configuration (rad), for MJCFs without a keyframe
     gripper_mjcf = "hand.xml"                 # a gripper in its own MJCF (arm files without one) ...
     gripper_mount = "flange"                  #   ... attached to this arm body
+    gripper_prefix = "gripper/"               #   ... its names prefixed (where both files use a name); the
+                                              #   gripper's names in this file then carry the prefix
     gripper_actuators = ["left", "right"]     # instead of gripper_actuator: one actuator per finger
                                               #   (gripper_range then [open, closed] for all, or one pair each)
     base_pos = [0, 0, 0]                      # the base body's position in the scene frame (m; table top z = 0)
@@ -107,7 +109,7 @@ _ONE_OF = (
 )
 _OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera",
              "gripper_actuator", "gripper_actuators", "home_key", "home", "base_pos", "base_quat", "pd_kp", "pd_kd",
-             "gripper_mjcf", "gripper_mount")
+             "gripper_mjcf", "gripper_mount", "gripper_prefix")
 
 
 @dataclass(frozen=True)
@@ -153,6 +155,7 @@ class RobotConfig:
     pd_kd: tuple[float, ...] = ()
     gripper_mjcf: Path | None = None  # a separate gripper MJCF, attached to the arm at gripper_mount
     gripper_mount: str | None = None  # the arm body the gripper's root is attached to (its frame)
+    gripper_prefix: str = ""  # prepended to every name of the gripper file when it is attached
     ee_site_body: str | None = None
     ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ee_site_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -240,6 +243,8 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
     base_quat = _floats(where, "base_quat", raw.get("base_quat", [1, 0, 0, 0]), 4)
     if np.linalg.norm(base_quat) < 1e-6:
         raise DemoError(where, f"'base_quat' must be a non-zero quaternion (wxyz), got {raw['base_quat']!r}")
+    if "gripper_prefix" in raw and ("gripper_mjcf" not in raw or not isinstance(raw["gripper_prefix"], str)):
+        raise DemoError(where, "'gripper_prefix' is a string prefixed to the names of gripper_mjcf's file (write both)")
     if ("gripper_mjcf" in raw) != ("gripper_mount" in raw):
         raise DemoError(where, "'gripper_mjcf' and 'gripper_mount' go together: write both (the gripper file and the arm body it mounts on)")
     gripper_mjcf = mjcf_location(str(raw["gripper_mjcf"]), base, where) if "gripper_mjcf" in raw else None
@@ -265,6 +270,7 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         pd_kd=pd["pd_kd"],
         gripper_mjcf=gripper_mjcf,
         gripper_mount=str(raw["gripper_mount"]) if "gripper_mount" in raw else None,
+        gripper_prefix=str(raw.get("gripper_prefix", "")),
         ee_site_body=raw.get("ee_site_body"),
         ee_site_pos=_floats(where, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
         ee_site_quat=_floats(where, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
@@ -384,6 +390,8 @@ def config_keys(robot: RobotConfig, mjcf: str, gripper_mjcf: str | None = None) 
     if robot.gripper_mjcf is not None:
         keys["gripper_mjcf"] = gripper_mjcf
         keys["gripper_mount"] = robot.gripper_mount
+        if robot.gripper_prefix:
+            keys["gripper_prefix"] = robot.gripper_prefix
     if robot.ee_site_body:
         keys["ee_site_body"] = robot.ee_site_body
     if robot.wrist_camera != DEFAULT_WRIST_CAMERA:

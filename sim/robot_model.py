@@ -10,8 +10,10 @@ config's home configuration (``home_qpos``, rad or m per hinge/slide joint; ``ho
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
+from xml.etree import ElementTree
 
 import mujoco
 import numpy as np
@@ -53,11 +55,17 @@ def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
 
 
 def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
-    """Attach ``gripper_mjcf`` (compiled on its own terms, names kept) to the arm body ``gripper_mount``."""
+    """Attach ``gripper_mjcf`` to the arm body ``gripper_mount``, its names prefixed with ``gripper_prefix``.
+
+    A gripper file that declares no angle unit (``<compiler angle=...>``) is read in the arm's: such files
+    are written to be included in an arm's MJCF (MJCF's own default, degrees, would shrink their hinge
+    ranges given in radians 57-fold)."""
     try:
         gripper = mujoco.MjSpec.from_file(str(robot.gripper_mjcf))
     except Exception as exc:
         raise DemoError(robot.gripper_mjcf, f"gripper MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
+    if not _declares_angle_unit(robot.gripper_mjcf):
+        gripper.compiler.degree = spec.compiler.degree
     mount = spec.body(str(robot.gripper_mount))
     if mount is None:
         raise DemoError(robot.config_path, f"gripper_mount '{robot.gripper_mount}' is not a body in {robot.mjcf_path.name}; "
@@ -66,13 +74,37 @@ def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
         gripper.delete(key)
     for name in (n for n in dir(spec.option) if not n.startswith("_")):  # the arm's options win, silently
         setattr(gripper.option, name, getattr(spec.option, name))
-    spec.attach(gripper, prefix="", frame=mount.add_frame())
+    try:
+        with warnings.catch_warnings():  # MjSpec warns of an empty prefix at every attach: names kept is the default here
+            warnings.simplefilter("ignore", UserWarning)
+            spec.attach(gripper, prefix=robot.gripper_prefix, frame=mount.add_frame())
+    except Exception as exc:  # a name both files use (textures, materials: MuJoCo's "repeated name")
+        raise DemoError(robot.config_path, f"gripper_mjcf {robot.gripper_mjcf.name} cannot be attached to "
+                                           f"{robot.mjcf_path.name}: {mujoco_message(exc)}{_prefix_hint(exc)}") from None
+
+
+def _prefix_hint(exc: BaseException) -> str:
+    """For a name the arm's and the gripper's files both use: how to tell them apart."""
+    return (" (both files use it: set gripper_prefix = \"gripper/\" and write the gripper's names with it)"
+            if "repeated name" in str(exc) else "")
+
+
+def _declares_angle_unit(path: Path) -> bool:
+    """Whether an MJCF file sets its angle unit (``<compiler angle="...">``)."""
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return True  # MuJoCo parsed it; leave its unit as MuJoCo read it
+    return any("angle" in c.attrib for c in root.iter("compiler"))
 
 
 def _compile(robot: RobotConfig, spec: mujoco.MjSpec) -> mujoco.MjModel:
     try:
         return spec.compile()
     except Exception as exc:
+        if robot.gripper_mjcf is not None and not robot.gripper_prefix and "repeated name" in str(exc):
+            raise DemoError(robot.config_path, f"gripper_mjcf {robot.gripper_mjcf.name} cannot be attached to "
+                                               f"{robot.mjcf_path.name}: {mujoco_message(exc)}{_prefix_hint(exc)}") from None
         raise DemoError(robot.mjcf_path, f"MJCF does not compile: {mujoco_message(exc)}{_named_by(robot)}") from None
 
 

@@ -44,3 +44,48 @@ def test_unlimited_joints_are_not_pinned_at_zero(tmp_path: Path) -> None:
     finally:
         env.close()
         builtin.close()
+
+
+GRIPPER = """<mujoco model="extra_gripper">{compiler}
+  <worldbody>
+    <body name="claw">
+      <geom type="box" size="0.01 0.01 0.01" mass="0.05"/>
+      <site name="tcp" size="0.005"/>
+      <body name="jaw"><joint name="jaw_hinge" type="hinge" range="0 0.8"/><geom type="box" size="0.005 0.005 0.02" mass="0.01"/></body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def with_gripper_file(tmp_path: Path, extra: str, compiler: str = "") -> Path:
+    """The built-in arm with a second gripper file attached at its flange; the file names a site ``tcp`` as
+    the arm's own does."""
+    (tmp_path / "claw.xml").write_text(GRIPPER.format(compiler=compiler))
+    toml = (ASSETS / "panda.toml").read_text().replace('mjcf = "panda.xml"', f'mjcf = "{ASSETS / "panda.xml"}"')
+    (tmp_path / "arm.toml").write_text(toml + 'gripper_mjcf = "claw.xml"\ngripper_mount = "link7"\n' + extra)
+    return tmp_path / "arm.toml"
+
+
+def test_a_gripper_sharing_names_with_the_arm_needs_a_prefix(tmp_path: Path, one_line_error) -> None:
+    config = with_gripper_file(tmp_path, "")
+    one_line_error(["robot", "check", str(config)], str(config), "claw.xml cannot be attached", "repeated name",
+                   "gripper_prefix")
+    robot = load_robot(with_gripper_file(tmp_path, 'gripper_prefix = "claw/"\n'))
+    env = make_env("reach", robot=robot)
+    try:
+        assert env.model.site("claw/tcp").id >= 0 and env.model.site("tcp").id >= 0  # both names, told apart
+    finally:
+        env.close()
+
+
+def test_a_gripper_file_without_an_angle_unit_is_read_in_the_arms(tmp_path: Path) -> None:
+    """Files written to be included in a radian arm declare no unit; MJCF's default (degrees) would shrink
+    their ranges 57-fold. One that declares degrees keeps them."""
+    for compiler, high in (("", 0.8), ('\n  <compiler angle="degree"/>', np.deg2rad(0.8))):
+        robot = load_robot(with_gripper_file(tmp_path, 'gripper_prefix = "claw/"\n', compiler))
+        env = make_env("reach", robot=robot)
+        try:
+            np.testing.assert_allclose(env.model.jnt_range[env.model.joint("claw/jaw_hinge").id], [0.0, high])
+        finally:
+            env.close()
