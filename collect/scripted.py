@@ -210,6 +210,7 @@ class CollectResult:
     # What the experts were asked to be: a deliberately imperfect operator or noise explains a low success rate.
     operator: str = "expert"
     noise: float = 0.0
+    task: str = ""
 
     @property
     def success_rate(self) -> float:
@@ -226,12 +227,18 @@ def check_success(result: CollectResult, min_success: float | None = None) -> st
     """Judge a finished run's measured success rate (``result.success_rate``, a fraction).
 
     Raises a :class:`DemoError` naming the store when it is below ``min_success`` (a fraction in
-    [0, 1]; None: no threshold); the episodes already collected stay stored. Otherwise returns a
+    [0, 1]; None: no threshold), or when the expert itself (no imperfect operator, no noise) succeeded on
+    no episode; the episodes already collected stay stored. Otherwise returns a
     one-line warning when it is below :data:`SUCCESS_WARNING`, else None.
     """
     if min_success is not None and not 0.0 <= min_success <= 1.0:
         raise DemoError("--min-success", f"must be a fraction in [0, 1], got {min_success}")
     rate = result.success_rate
+    # (A Gymnasium environment's expert is judged by the environment, which may report no success at all.)
+    if result.successes == 0 and result.operator == "expert" and result.noise == 0 and not is_foreign(result.task):
+        # The expert itself never succeeds: no demonstration of the task (a robot it cannot work, task options)
+        raise DemoError(result.path, f"the expert succeeded on none of {result.episodes} episodes: check the robot "
+                                     "config (demo robot check) and the task options (the episodes stay stored)")
     if min_success is not None and rate < min_success:
         raise DemoError(result.path, f"expert success {rate:.2f} < --min-success {min_success:g} "
                                      f"({result.episodes} episodes stay stored)")
@@ -307,7 +314,7 @@ def collect_scripted(
                     modes[info["expert_mode"]] = modes.get(info["expert_mode"], 0) + 1
                 report(collect_tick(config.task, done, config.episodes, successes, frames, time.perf_counter() - start))
     return CollectResult(str(out), config.episodes, successes, frames, time.perf_counter() - start, modes,
-                         config.operator, config.noise)
+                         config.operator, config.noise, config.task)
 
 
 def _next_episode_index(store: EpisodeStore, config: CollectConfig) -> int:

@@ -53,11 +53,12 @@ from demo.executor import ExecutorConfig, ordered_map
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import EVAL_OFFSET, eval_seeds
 from demo.sim import make_env
-from demo.sim.robot_record import resolve_robot
+from demo.sim.robot_record import resolve_robot, robot_record
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.output import open_output
+from demo.store.robot_files import same_body
 from demo.policies.actions import make_action_adapter
 from demo.policies.actor import ExecConfig, PolicyActor
 from demo.policies.checkpoint import PolicyBundle, load_bundle, now, robot_home, trained_robots
@@ -150,14 +151,20 @@ def pick_robot(bundle: PolicyBundle, robot: str | None) -> Any:
     return resolve_robot(None, robot)
 
 
-def robot_transfer(bundle: PolicyBundle, robot: str) -> str | None:
-    """``None`` when the policy was trained on ``robot`` (a name), else the note saying it is new to the
-    policy, where its actions allow it (end-effector space); refuses a joint-space policy."""
-    trained = [r.get("name") for r in trained_robots(bundle.run) if r.get("name")]
-    if not trained or robot in trained:
+def robot_transfer(bundle: PolicyBundle, robot: Any) -> str | None:
+    """``None`` when the policy was trained on ``robot`` (a ``RobotConfig``; the same arm by content: its
+    config keys and files, the name only a label), else the note saying it is new to the policy, where
+    its actions allow it (end-effector space); refuses a joint-space policy."""
+    records = trained_robots(bundle.run)
+    mine = robot_record(robot)
+    if not records or any(same_body(r, mine) for r in records):
         return None
+    trained = [r.get("name") for r in records]
     where, action = str(bundle.path or "run"), bundle.action
     which = ", ".join(repr(n) for n in trained)
+    if robot.name in trained:  # a name alone does not make an arm
+        which += f" (another arm of the same name: its config or files differ from the run's {robot.name!r})"
+    robot = robot.name
     if action.frame == "joint":
         raise DemoError(where, f"was trained on robot {which}; it cannot be evaluated on {robot!r}: its {action.name} "
                                "actions are joint targets of the arm it was trained on (a policy trained on actions "
@@ -180,7 +187,7 @@ def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robo
         return env
     env = make_env(task, robot=robot, cameras=[*bundle.obs_spec.cameras(), *cameras], **options)
     try:
-        new = robot_transfer(bundle, env.robot.name)
+        new = robot_transfer(bundle, env.robot)
         try:
             bundle.obs_spec.check_against(env.features, f"{task} environment (robot {env.robot.name})")
         except DemoError as exc:
@@ -372,7 +379,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         tell(Tick(f"eval {run.name}", len(outcomes), len(jobs), {"success": f"{successes}/{len(outcomes)}"}))
 
     robot_name = env.robot.name if env.robot is not None else None  # a Gymnasium environment has none of ours
-    transfer = robot_transfer(bundle, robot_name) if robot_name is not None else None
+    transfer = robot_transfer(bundle, env.robot) if env.robot is not None else None
     stack = ExitStack()  # an exception leaves the recorded episodes committed (a store created here and left empty goes)
     try:
         if config.record is not None:

@@ -145,6 +145,16 @@ def copy_robot_files(record: dict[str, Any] | None, origin: object, dest: object
     return True
 
 
+def same_body(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
+    """Whether two records describe the same arm whatever they are called: the same config keys (the name
+    aside) and the same files, by content; the built-in arm by its config."""
+    a, b = a or {}, b or {}
+    if "files" in a and "files" in b:
+        keys = [{k: v for k, v in (r.get("toml") or {}).items() if k != "name"} for r in (a, b)]
+        return keys[0] == keys[1] and a.get("files") == b.get("files")
+    return "files" not in a and "files" not in b and a.get("config") == b.get("config")
+
+
 def same_robot(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
     """Whether two records describe the same robot (by content; where it was read from does not count)."""
     a, b = a or {}, b or {}

@@ -29,6 +29,8 @@ def test_check_success_thresholds() -> None:
     with pytest.raises(DemoError, match=r"--min-success: must be a fraction in \[0, 1\]"):
         check_success(result(10), min_success=90)
     assert warning.endswith("check the robot config and the task options")  # the expert itself: blame the set-up
+    with pytest.raises(DemoError, match="the expert succeeded on none of 10 episodes"):
+        check_success(result(0))  # whatever --min-success says
     noisy = CollectResult("pick.zarr", 10, 4, frames=100, seconds=1.0, modes={}, operator="okay", noise=0.1)
     assert check_success(noisy).endswith("as --operator okay and --noise 0.1 may cause (the expert alone: "
                                          "--operator expert, no --noise)")  # asked for: not the robot's fault

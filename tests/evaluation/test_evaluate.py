@@ -13,6 +13,7 @@ import torch
 from demo.cli.main import main
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
+from demo.sim.robot import BUILTIN_CONFIG
 from demo.imitation.bc import train
 from demo.training.config import TrainConfig
 from demo.evaluation.evaluate import EvalConfig, evaluate, wilson_interval
@@ -64,15 +65,20 @@ def test_other_task_or_options_are_refused(runs: dict[str, Path]) -> None:
         evaluate(EvalConfig(run=str(runs["bc"]), task="pick", episodes=1))
     with pytest.raises(DemoError, match="options"):
         evaluate(EvalConfig(run=str(runs["bc"]), task_options={"pos_tol": 0.01}, episodes=1))
-    # The run names its robot; a different robot name is refused before any rollout.
+    # The run names its robot; another arm under that name is refused before any rollout (identity is the
+    # content: the config and its files), the same arm under another name is the arm it was trained on.
     run = json.loads((runs["bc"] / "run.json").read_text())
     run["robot"]["name"] = "another_arm"
     other = runs["tmp"] / "other_robot"
     other.mkdir(exist_ok=True)
     (other / "run.json").write_text(json.dumps(run))
     (other / "policy.safetensors").write_bytes((runs["bc"] / "policy.safetensors").read_bytes())
-    with pytest.raises(DemoError, match="trained on robot 'another_arm'"):
-        evaluate(EvalConfig(run=str(other), episodes=1))
+    assert evaluate(EvalConfig(run=str(other), episodes=1))["robot_trained_on"] is True
+    config = runs["tmp"] / "moved.toml"
+    config.write_text(BUILTIN_CONFIG.read_text().replace('mjcf = "panda.xml"', f'mjcf = "{BUILTIN_CONFIG.parent / "panda.xml"}"')
+                      + "base_pos = [0.02, 0.0, 0.0]\n")
+    with pytest.raises(DemoError, match="another arm of the same name.*it cannot be evaluated on 'panda_prim'"):
+        evaluate(EvalConfig(run=str(runs["bc"]), robot=str(config), episodes=1))
 
 
 @pytest.mark.slow

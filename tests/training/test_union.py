@@ -38,7 +38,9 @@ def arms(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """reach on the built-in arm and on its twin (3 episodes each), joint_pos and ee7."""
     d = tmp_path_factory.mktemp("union")
     twin = twin_config(d, "panda_twin")
-    paths = {"twin_toml": twin, "other_toml": twin_config(d, "panda_other")}
+    other = twin_config(d, "panda_other")  # the twin's arm on another base: another arm by content
+    other.write_text(other.read_text() + "base_pos = [0.02, 0.0, 0.0]\n")
+    paths = {"twin_toml": twin, "other_toml": other, "renamed_toml": twin_config(d, "panda_renamed")}
     for name, robot in (("builtin", None), ("twin", str(twin))):
         assert main(["collect", "--task", "reach", "--episodes", "3", "--seed", "0", "--out", str(d / f"{name}.zarr"),
                      *(["--robot", robot] if robot else [])]) == 0
@@ -97,6 +99,9 @@ def test_ee7_policy_may_run_on_a_robot_it_was_not_trained_on(union_run: Path, ar
     result = json.loads(js.read_text())
     assert result["robot"] == "panda_other" and result["robot_trained_on"] is False
     assert "not among the robots the policy was trained on" in result["robot_note"]
+    # The twin under another name is the arm it was trained on: identity is the content, the name a label.
+    assert main(["eval", str(union_run), "--robot", str(arms["renamed_toml"]), "--episodes", "1", "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["robot_trained_on"] is True
 
 
 def test_joint_policy_refuses_another_robot(arms: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
