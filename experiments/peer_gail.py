@@ -243,7 +243,7 @@ def check_env_against(env: gymnasium.Env, store: Any, path: str) -> list[str]:
     missing = [k for k in keys if k not in meta.features]
     if missing:
         raise DemoError(path, f"does not record {', '.join(missing)}, which the env observes")
-    wrong = [k for k in keys if tuple(meta.features[k].shape) != tuple(space[k].shape)]
+    wrong = [k for k in keys if int(np.prod(meta.features[k].shape)) != int(np.prod(space[k].shape))]  # both flattened
     if wrong:
         raise DemoError(path, f"records {', '.join(wrong)} in another shape than the env observes")
     return keys

@@ -12,11 +12,19 @@ Options (keyword arguments of ``gymnasium.make``):
   ``ee_delta``, ``ee_abs`` or ``joint_vel``, with ``rotation`` / ``delta_frame`` as ``demo convert``
   takes them (:mod:`demo.convert.representations`); executed as ``demo eval`` executes a policy trained
   on it (:mod:`demo.gym.actions`).
+- ``flat_obs``: low-dim observations flat (default; as RL and trajectory libraries take them), or False
+  for the store's per-frame shapes (``obs.object_pos`` (n, 3)), as :mod:`demo.rl` reads them.
+- ``normalize_actions``: the action space is [-1, 1] per dimension, mapped linearly onto the
+  representation's bounds (as RL libraries expect; refused where a bound is infinite, e.g. an
+  unlimited joint in ``joint_pos``); the expert answers in it too. Default False: the representation's
+  own units.
 - task options, e.g. ``blocks=2`` for stack; ``render_mode="rgb_array"`` with ``render_camera``
   (default ``front@256x256``, at most 640x480); ``hold_success_s`` (default 0.5 s, below).
 
-Spaces (:mod:`demo.gym.spaces`): the observation ``Dict`` has the keys, shapes and dtypes of the
-features a store collected from the same env records; the action ``Box`` is the representation's.
+Spaces (:mod:`demo.gym.spaces`): the observation ``Dict`` has the keys and dtypes of the features a
+store collected from the same env records, low-dim ones flat and bounded where physical; the action
+``Box`` is the representation's (or [-1, 1], ``normalize_actions``). ``env.spec.max_episode_steps`` is
+the task's horizon (with its options), the step the env truncates itself at.
 
 Seeds: ``reset(seed=s)`` calls the simulator's ``env.reset(s)``, so ``s`` is the *reset seed*, the
 ``seed`` column of a store. Episode ``i`` of ``demo collect --seed S`` starts from
@@ -41,6 +49,7 @@ The expert: ``env.unwrapped.expert()`` (:class:`demo.gym.expert.GymExpert`).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -66,6 +75,7 @@ class DemoEnv(gymnasium.Env):
     """A task environment (module docstring); ``sim`` is the :class:`demo.sim.env.Env` it drives."""
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": CONTROL_HZ}
+    _spec: Any = None
 
     def __init__(
         self,
@@ -79,6 +89,8 @@ class DemoEnv(gymnasium.Env):
         render_mode: str | None = None,
         render_camera: str = "front@256x256",
         hold_success_s: float | None = HOLD_SUCCESS_S,
+        normalize_actions: bool = False,
+        flat_obs: bool = True,
         **task_options: Any,
     ):
         if render_mode is not None and render_mode not in RENDER_MODES:
@@ -89,13 +101,13 @@ class DemoEnv(gymnasium.Env):
         self.sim = make_env(task, robot=robot, cameras=[cameras] if isinstance(cameras, str) else cameras,
                             **task_options)
         try:
-            self._setup(obs_keys, action, rotation, delta_frame, hold_success_s)
+            self._setup(obs_keys, action, rotation, delta_frame, hold_success_s, normalize_actions, flat_obs)
         except Exception:
             self.sim.close()
             raise
 
     def _setup(self, obs_keys: Sequence[str] | None, action: str, rotation: str | None, delta_frame: str | None,
-               hold_success_s: float | None) -> None:
+               hold_success_s: float | None, normalize_actions: bool, flat_obs: bool) -> None:
         sim = self.sim
         observable = [k for k in sim.features if k.startswith("obs.")]
         keys = list(observable if obs_keys is None else obs_keys)
@@ -104,12 +116,21 @@ class DemoEnv(gymnasium.Env):
             raise DemoError("obs_keys", f"unknown or no observation keys {unknown} (known: {', '.join(observable)})")
         self.obs_keys = tuple(keys)
         self.features = {k: sim.features[k] for k in self.obs_keys}
-        self.observation_space = observation_space(sim.features, self.obs_keys)
+        self.observation_space = observation_space(sim.features, self.obs_keys, _joint_limits(sim), flat_obs)
+        self.flat_obs = flat_obs
         fmt = make_format(action, joint_names=sim.robot.arm_joints, rotation=rotation, delta_frame=delta_frame,
                           where="action")
         self.codec = ActionCodec(fmt, sim)
         self.action_spec = sim.action_spec if fmt.name == "joint_pos" else fmt.spec()
-        self.action_space = action_space(fmt, _joint_limits(sim))
+        units = action_space(fmt, _joint_limits(sim))
+        self._action_low, self._action_span = None, None  # the affine map from [-1, 1], when normalised
+        if normalize_actions:
+            if not (np.isfinite(units.low).all() and np.isfinite(units.high).all()):
+                raise DemoError("normalize_actions", f"the {fmt.name} action has an unbounded dimension (an "
+                                                     "unlimited joint): it cannot be normalised to [-1, 1]")
+            self._action_low, self._action_span = units.low.astype(np.float64), (units.high - units.low).astype(np.float64)
+            units = gymnasium.spaces.Box(-1.0, 1.0, units.shape, np.float32)
+        self.action_space = units
         self.horizon = sim.horizon
         self._hold = SuccessHold(hold_success_s, sim.fps)
         self.reset_seed: int | None = None
@@ -128,6 +149,8 @@ class DemoEnv(gymnasium.Env):
         return self._observation(obs), {"seed": self.reset_seed}
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        if self._action_low is not None:  # [-1, 1] -> the representation's units
+            action = self._action_low + (np.asarray(action, dtype=np.float64) + 1.0) * 0.5 * self._action_span
         obs, reward, success, truncated, _ = self.sim.step(self.codec.command(action))
         failure = self.sim.task.failure(self.sim)
         terminated = self._hold.update(bool(success)) or failure is not None
@@ -159,10 +182,28 @@ class DemoEnv(gymnasium.Env):
         from the reset seed)."""
         return GymExpert(self, self.sim.expert(rng, **style))
 
+    def normalized(self, action: np.ndarray) -> np.ndarray:
+        """An action in the representation's units as the action space takes it ([-1, 1] when normalised)."""
+        if self._action_low is None:
+            return action
+        return (2.0 * (np.asarray(action, dtype=np.float64) - self._action_low) / self._action_span - 1.0).astype(np.float32)
+
+    @property
+    def spec(self) -> Any:
+        """The registered spec, its ``max_episode_steps`` the task's horizon: the env truncates itself there."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: Any) -> None:  # gymnasium.make sets it after construction
+        self._spec = value if value is None or value.max_episode_steps else dataclasses.replace(
+            value, max_episode_steps=int(self.horizon))
+
     def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        # Copies: the simulator reuses its last observation while the state is unchanged, and a
-        # caller keeps what it is given.
-        return {k: np.array(obs[k]) for k in self.obs_keys}
+        # Copies (the simulator reuses its last observation while the state is unchanged, and a caller keeps
+        # what it is given), low-dim features flat (module docstring of demo.gym.spaces).
+        flat = self.flat_obs
+        return {k: np.array(obs[k]).reshape(-1) if flat and obs[k].dtype != np.uint8 else np.array(obs[k])
+                for k in self.obs_keys}
 
 
 def _joint_limits(sim: Any) -> np.ndarray:

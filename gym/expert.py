@@ -34,4 +34,4 @@ class GymExpert:
         return self.expert.mode
 
     def act(self, obs: Any = None) -> np.ndarray:
-        return self.env.codec.encode(self.expert.act(self.env.sim))
+        return self.env.normalized(self.env.codec.encode(self.expert.act(self.env.sim)))

@@ -2,10 +2,13 @@
 action format.
 
 Observations: a ``Dict`` over the env's ``obs.*`` features (:attr:`demo.sim.env.Env.features`), so the
-keys, shapes and dtypes are exactly those a store collected from the same env records: low-dim state
-(float32, m, rad, rad/s, quaternions wxyz in the robot base frame) as unbounded ``Box`` es (no bound
-is known for velocities or object positions), camera images ``obs.image_<camera>`` as uint8
-``Box`` es in [0, 255] of shape [height, width, 3].
+keys and dtypes are those a store collected from the same env records, each low-dim feature flattened to
+one dimension (a store's ``obs.object_pos`` of shape (n, 3) is (3 n,) here, as trajectory and RL libraries
+take it): low-dim state (float32, m, rad, rad/s, quaternions wxyz in the robot base frame) bounded where
+the bound is physical (``OBS_BOUNDS``: joint positions by the joints' limits, the gripper's closedness in
+[0, 1], quaternions in [-1, 1], positions within +-``REACH`` m of the base), unbounded otherwise
+(velocities); camera images ``obs.image_<camera>`` as uint8 ``Box`` es in [0, 255] of shape
+[height, width, 3].
 
 Actions: a float32 ``Box`` of the format's dimension (:mod:`demo.convert.representations` defines
 every number). Its bounds are the range a policy is meant to act in, and the one random exploration
@@ -38,17 +41,35 @@ ROT_STEP = 0.5  # rad per control step (10 rad/s at 20 Hz)
 _ROTATION_BOUND = {"euler": math.pi, "rotvec": math.pi, "quat": 1.0, "rot6d": 1.0}
 
 
-def feature_space(feature: FeatureSpec) -> spaces.Box:
-    """The space of one per-frame feature: uint8 images in [0, 255], anything else unbounded."""
+def feature_bounds(key: str, size: int, joint_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Physical bounds of a flattened low-dim feature (module docstring); +-inf where none is known."""
+    low, high = np.full(size, -np.inf), np.full(size, np.inf)
+    if key == "obs.joint_pos" and size == len(joint_limits):
+        low, high = joint_limits[:, 0].copy(), joint_limits[:, 1].copy()
+    elif key == "obs.gripper":
+        low[:], high[:] = 0.0, 1.0
+    elif key.endswith("_quat"):
+        low[:], high[:] = -1.0, 1.0
+    elif key.endswith("_pos"):
+        low[:], high[:] = -REACH, REACH
+    return low, high
+
+
+def feature_space(key: str, feature: FeatureSpec, joint_limits: np.ndarray, flat: bool = True) -> spaces.Box:
+    """The space of one per-frame feature: uint8 images in [0, 255] as they are; anything else bounded by
+    :func:`feature_bounds`, flat (or in the store's shape: ``flat=False``)."""
     dtype = np.dtype(feature.dtype)
     if dtype == np.uint8:
         return spaces.Box(0, 255, shape=feature.shape, dtype=np.uint8)
-    return spaces.Box(-np.inf, np.inf, shape=feature.shape, dtype=dtype)
+    low, high = feature_bounds(key, int(np.prod(feature.shape)), joint_limits)
+    shape = low.shape if flat else feature.shape
+    return spaces.Box(low.reshape(shape).astype(dtype), high.reshape(shape).astype(dtype), dtype=dtype)
 
 
-def observation_space(features: Mapping[str, FeatureSpec], keys: Sequence[str]) -> spaces.Dict:
-    """A ``Dict`` of ``keys`` (store feature names, e.g. ``obs.joint_pos``)."""
-    return spaces.Dict({k: feature_space(features[k]) for k in keys})
+def observation_space(features: Mapping[str, FeatureSpec], keys: Sequence[str], joint_limits: np.ndarray,
+                      flat: bool = True) -> spaces.Dict:
+    """A ``Dict`` of ``keys`` (store feature names, e.g. ``obs.joint_pos``); ``joint_limits`` [n_arm, 2] (rad)."""
+    return spaces.Dict({k: feature_space(k, features[k], joint_limits, flat) for k in keys})
 
 
 def action_space(fmt: ActionFormat, joint_limits: np.ndarray) -> spaces.Box:

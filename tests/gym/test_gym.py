@@ -19,8 +19,8 @@ from demo.sim.rollout import run_expert
 from demo.sim.tasks import TASK_NAMES
 from demo.store import EpisodeStore
 
-# What check_env may say about our spaces, by design (demo.gym.spaces): state has no known bounds,
-# and actions are in the store's units (rad), not normalised to [-1, 1].
+# What check_env may say about our spaces, by design (demo.gym.spaces): velocities have no known bounds,
+# and actions are in the store's units (rad) unless normalize_actions.
 ALLOWED_WARNINGS = (
     "A Box observation space minimum value is -infinity",
     "A Box observation space maximum value is infinity",
@@ -63,8 +63,8 @@ def test_check_env_cameras(task: str) -> None:
 def test_check_env_ee7_and_task_options() -> None:
     checked("demo/Pick-v0", action="ee7")
     env = gymnasium.make("demo/Stack-v0", blocks=2)
-    assert env.observation_space["obs.object_pos"].shape == (2, 3)
-    assert env.unwrapped.horizon == 260
+    assert env.observation_space["obs.object_pos"].shape == (6,)  # a store's (2, 3), flat
+    assert env.unwrapped.horizon == 260 and env.spec.max_episode_steps == 260  # the options' horizon
     env.close()
 
 
@@ -76,7 +76,8 @@ def test_spaces_and_first_observation_match_a_collected_store(tmp_path: Path) ->
     stored = {k: f for k, f in store.meta.features.items() if k.startswith("obs.")}
     assert set(env.observation_space.spaces) == set(stored)
     for key, space in env.observation_space.spaces.items():
-        assert (space.shape, space.dtype) == (stored[key].shape, np.dtype(stored[key].dtype)), key
+        shape = stored[key].shape if key.startswith("obs.image_") else (int(np.prod(stored[key].shape)),)  # low-dim: flat
+        assert (space.shape, space.dtype) == (shape, np.dtype(stored[key].dtype)), key
     assert env.action_space.shape == (store.meta.action.dim,) and env.unwrapped.action_spec == store.meta.action
     # The reset seed is the store's seed column: the first observation is the stored frame 0, bit for bit.
     seed = int(store.column("seed")[0])
@@ -85,7 +86,8 @@ def test_spaces_and_first_observation_match_a_collected_store(tmp_path: Path) ->
     assert info["seed"] == seed
     frame0 = store.read_episode(0, list(stored))
     for key in stored:
-        np.testing.assert_array_equal(obs[key], frame0[key][0], err_msg=key)
+        np.testing.assert_array_equal(obs[key], frame0[key][0].reshape(obs[key].shape), err_msg=key)
+        assert env.observation_space[key].contains(obs[key]), key
     env.close()
 
 
@@ -174,3 +176,36 @@ def test_options_and_bad_input() -> None:
             gymnasium.make("demo/Reach-v0", **options)
     with pytest.raises(DemoError, match="'human' is not supported"):  # gymnasium.make wraps rgb_array for human
         demo.gym.DemoEnv("reach", render_mode="human")
+
+
+def test_the_seams_rl_and_trajectory_libraries_touch(tmp_path: Path) -> None:
+    """Finite bounds where physical, flat keys, max_episode_steps in the spec, a normalised action option whose
+    expert answers in it."""
+    env = gymnasium.make("demo/Pick-v0", normalize_actions=True)
+    try:
+        space = env.observation_space
+        assert all(len(b.shape) == 1 for b in space.spaces.values())
+        assert np.isfinite(space["obs.joint_pos"].low).all() and space["obs.gripper"].high.tolist() == [1.0]
+        assert space["obs.object_quat"].low.tolist() == [-1.0] * 4 and np.isfinite(space["obs.object_pos"].high).all()
+        assert env.spec.max_episode_steps == env.unwrapped.horizon
+        assert env.action_space.low.tolist() == [-1.0] * 8 and env.action_space.high.tolist() == [1.0] * 8
+        obs, _ = env.reset(seed=episode_seed(0, 0))
+        expert = env.unwrapped.expert()
+        for _ in range(env.spec.max_episode_steps):
+            action = expert.act(obs)
+            assert env.action_space.contains(action)
+            obs, reward, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        assert info["success"]
+    finally:
+        env.close()
+    # An arm with a continuous joint has no finite joint_pos bounds to normalise to.
+    from demo.sim.robot import BUILTIN_CONFIG
+
+    xml = (BUILTIN_CONFIG.parent / "panda.xml").read_text().replace('<joint name="joint7"/>',
+                                                                     '<joint name="joint7" limited="false" range="0 0"/>')
+    (tmp_path / "cobot.xml").write_text(xml)
+    (tmp_path / "cobot.toml").write_text(BUILTIN_CONFIG.read_text().replace('"panda.xml"', '"cobot.xml"'))
+    with pytest.raises(DemoError, match="normalize_actions: the joint_pos action has an unbounded dimension"):
+        gymnasium.make("demo/Pick-v0", normalize_actions=True, robot=str(tmp_path / "cobot.toml"))
