@@ -45,6 +45,7 @@ def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
         raise DemoError(robot.mjcf_path, f"MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
     if robot.gripper_mjcf is not None:
         _attach_gripper(robot, spec)
+    _name_actuators(spec)
     if robot.ee_site_body:
         body = spec.body(robot.ee_site_body)
         if body is None:
@@ -52,6 +53,21 @@ def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
                                                "name a body of the hand (the EE site is added to it)")
         body.add_site(name=robot.ee_site, pos=list(robot.ee_site_pos), quat=list(robot.ee_site_quat), size=[0.006, 0, 0])
     return spec
+
+
+def _name_actuators(spec: mujoco.MjSpec) -> None:
+    """Name every unnamed actuator after the joint or tendon it drives (``_2``, ... for a second one), so a
+    TOML can name it (published scenes such as gym-aloha's leave theirs unnamed)."""
+    taken = {a.name for a in spec.actuators if a.name}
+    for actuator in spec.actuators:
+        if actuator.name or not actuator.target:
+            continue
+        name, n = actuator.target, 1
+        while name in taken:
+            n += 1
+            name = f"{actuator.target}_{n}"
+        actuator.name = name
+        taken.add(name)
 
 
 def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 
 from demo.sim import make_env
 from demo.sim.robot import load_robot
+from demo.sim.rollout import run_expert
 
 ASSETS = Path(__file__).resolve().parents[2] / "sim" / "assets"
 
@@ -89,3 +90,25 @@ def test_a_gripper_file_without_an_angle_unit_is_read_in_the_arms(tmp_path: Path
             np.testing.assert_allclose(env.model.jnt_range[env.model.joint("claw/jaw_hinge").id], [0.0, high])
         finally:
             env.close()
+
+
+def test_unnamed_actuators_are_named_after_what_they_drive(tmp_path: Path) -> None:
+    """gym-aloha's scenes leave their actuators unnamed: a TOML names them by their joint or tendon."""
+    xml = (ASSETS / "panda.xml").read_text()
+    start = xml.index("<actuator>")
+    body = xml[start:xml.index("</actuator>")]
+    unnamed = body
+    for name in ("actuator1", "actuator2", "actuator3", "actuator4", "actuator5", "actuator6", "actuator7", "gripper"):
+        unnamed = unnamed.replace(f'name="{name}" ', "").replace(f' name="{name}"', "")
+    assert 'name="' not in unnamed.split(">", 1)[1], "every actuator is unnamed now"
+    (tmp_path / "unnamed.xml").write_text(xml.replace(body, unnamed))
+    tendon = unnamed.split('tendon="', 1)[1].split('"', 1)[0]  # the gripper drives the fingers' tendon
+    toml = (ASSETS / "panda.toml").read_text().replace('mjcf = "panda.xml"', 'mjcf = "unnamed.xml"')
+    (tmp_path / "unnamed.toml").write_text(toml.replace('gripper_actuator = "gripper"', f'gripper_actuator = "{tendon}"'))
+    robot = load_robot(tmp_path / "unnamed.toml")
+    env = make_env("reach", robot=robot)
+    try:
+        assert env.model.actuator("joint1").id >= 0 and env.model.actuator(tendon).id >= 0
+        assert run_expert(env, 0).success
+    finally:
+        env.close()
