@@ -11,7 +11,7 @@ What it measures, in order (each a field of :class:`RobotCheck`):
    a top-down grasp at each object's centre and the same 10 cm above it), in the scene frame. Each is solved from the episode's start by the experts'
    IK (:meth:`demo.sim.env.Env.place_ee`, kinematics only) and counts as reached within 1 cm and
    0.1 rad. Fewer than ``MIN_REACH`` of them reached is an error naming ``base_pos``: the arm
-   stands where its workspace misses the table.
+   stands where its workspace misses the table, and the error says where to move it (:func:`base_hint`).
 4. The gripper closes: from home, commanded closed for 1 s with nothing between the fingers, the
    measured closedness must pass 0.5.
 5. Expert success on ``reach`` and ``pick``: ``episodes`` episodes each, seeds
@@ -90,16 +90,16 @@ def check_robot(
     tick = or_silent(progress)
     for task in TASK_NAMES:
         with make_env(task, robot=robot) as env:
-            reached, total = _reach_targets(env, seed, targets)
-        report.ik[task] = {"reached": reached, "targets": total, "rate": reached / max(total, 1)}
+            reached, total, misses, home_ee = _reach_targets(env, seed, targets)
+        report.ik[task] = {"reached": reached, "targets": total, "rate": reached / max(total, 1),
+                           "mean_missed_target": np.mean(misses, axis=0).tolist() if misses else home_ee.tolist(),
+                           "home_ee": home_ee.tolist()}
         tick(Tick("ik", len(report.ik), len(TASK_NAMES)))
     worst = min(report.ik, key=lambda t: report.ik[t]["rate"])
     if report.ik[worst]["rate"] < MIN_REACH:
         r = report.ik[worst]
         raise DemoError(robot.config_path, f"the arm reaches {r['reached']}/{r['targets']} of the {worst} task's targets "
-                                           f"(needs {MIN_REACH:.0%}): its workspace misses the table; move it with "
-                                           f"base_pos = [x, y, z] (now {list(robot.base_pos)}; x > 0 brings it closer, "
-                                           "z raises it above the table top)")
+                                           f"(needs {MIN_REACH:.0%}): {base_hint(robot.base_pos, r['mean_missed_target'], r['home_ee'])}")
     with make_env("pick", robot=robot) as env:
         report.gripper_closes = _close_gripper(env)
     if report.gripper_closes < 0.5:
@@ -144,9 +144,25 @@ def _actuation(model: mujoco.MjModel, file_model: mujoco.MjModel, joint: int) ->
     return "-"
 
 
-def _reach_targets(env: Env, seed: int, n: int) -> tuple[int, int]:
-    """(reached, tried) over the poses the task's expert must reach, ``n`` episodes' worth."""
+def base_hint(base_pos: tuple[float, ...], mean_missed_target: list[float], home_ee: list[float]) -> str:
+    """Where to move the base (scene frame, m): so that the targets it missed sit, on average, where its gripper
+    is at home (in the table's plane), the arm's own working spot: that covers targets beyond its reach,
+    too close under it and behind it alike."""
+    move = np.asarray(mean_missed_target, dtype=float) - np.asarray(home_ee, dtype=float)
+    move[2] = 0.0
+    axis = int(np.argmax(np.abs(move[:2])))
+    way = ("forward (+x)", "back (-x)", "left (+y)", "right (-y)")[2 * axis + (move[axis] < 0)]
+    suggested = [round(float(v), 2) + 0.0 for v in np.asarray(base_pos, dtype=float) + move]
+    return (f"the targets it missed lie {np.linalg.norm(move):.2f} m from where its gripper is at home; move the base "
+            f"{way}: base_pos = {suggested} (now {list(base_pos)}; scene frame, m)")
+
+
+def _reach_targets(env: Env, seed: int, n: int) -> tuple[int, int, list[np.ndarray], np.ndarray]:
+    """(reached, tried, missed target positions, the gripper's position at home) over the poses the task's
+    expert must reach, ``n`` episodes' worth (m, scene frame)."""
     reached = total = 0
+    misses: list[np.ndarray] = []
+    home_ee = np.zeros(3)
     ik = ArmIK(env.spec, env.robot, 1.0 / env.fps)  # the experts' IK without obstacle avoidance: reachability only
     free = [b for b in range(env.model.nbody) if any(
         int(env.model.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_FREE)
@@ -165,13 +181,18 @@ def _reach_targets(env: Env, seed: int, n: int) -> tuple[int, int]:
             for lift in (0.0, 0.10):
                 poses.append((pos + np.array([0.0, 0.0, lift]), down_quat(env.home_yaw)))
         q0 = env.data.qpos[env.arm_qadr].copy()
+        env.set_arm(np.array([env.robot.home_qpos[j] for j in env.robot.arm_joints]))  # the arm's own home pose
+        home_ee = env.ee_pose()[0].copy()
         for pos, quat in poses:
             q = ik.solve_pose(q0, env.to_world(pos), env.quat_to_world(quat), iters=100)
             env.set_arm(q)
             ee_pos, ee_quat = env.ee_pose()
             total += 1
-            reached += bool(np.linalg.norm(ee_pos - pos) < POS_TOL and quat_angle(ee_quat, quat) < ROT_TOL)
-    return reached, total
+            ok = bool(np.linalg.norm(ee_pos - pos) < POS_TOL and quat_angle(ee_quat, quat) < ROT_TOL)
+            reached += ok
+            if not ok:
+                misses.append(np.asarray(pos, dtype=float))
+    return reached, total, misses, home_ee
 
 
 def _close_gripper(env: Env, seconds: float = 1.0) -> float:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from demo.sim import make_env
 from demo.sim.robot import load_robot
@@ -112,3 +113,19 @@ def test_unnamed_actuators_are_named_after_what_they_drive(tmp_path: Path) -> No
         assert run_expert(env, 0).success
     finally:
         env.close()
+
+
+def test_robot_check_points_the_base_towards_the_targets_it_misses(tmp_path: Path) -> None:
+    """The hint is computed from where the missed targets lie: behind the table, forward; past it, back."""
+    from demo.errors import DemoError
+    from demo.sim.robot_check import check_robot
+
+    for base_x, way in ((-0.7, "forward (+x)"), (0.9, "back (-x)")):
+        toml = (ASSETS / "panda.toml").read_text().replace('mjcf = "panda.xml"', f'mjcf = "{ASSETS / "panda.xml"}"')
+        (tmp_path / "moved.toml").write_text(toml + f"base_pos = [{base_x}, 0.0, 0.0]\n")
+        with pytest.raises(DemoError) as err:
+            check_robot(tmp_path / "moved.toml", episodes=1, targets=3)
+        message = str(err.value)
+        assert f"move the base {way}" in message, message
+        suggested = float(message.split("base_pos = [")[1].split(",")[0])
+        assert abs(suggested) < abs(base_x)  # back towards the table

@@ -186,7 +186,7 @@ def test_bad_config_is_one_line_naming_the_file_and_fix(tmp_path, one_line_error
 def test_base_pose_out_of_reach_names_base_pos(tmp_path, one_line_error):
     cfg = panda_variant(tmp_path, PANDA_XML, "base_pos = [-0.9, 0, 0]\n")
     line = one_line_error(["robot", "check", str(cfg), "--episodes", "1", "--targets", "2"])
-    assert f"{cfg.resolve()}: the arm reaches" in line and "move it with base_pos = [x, y, z]" in line
+    assert f"{cfg.resolve()}: the arm reaches" in line and "move the base forward (+x): base_pos = [" in line
 
 
 def test_package_that_is_not_installed(tmp_path):
