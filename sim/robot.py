@@ -30,6 +30,8 @@ A robot config is a small TOML file (paths relative to it)::
     ee_site_pos = [0, 0, 0.1034]              #   ... at this pose in the body frame (m)
     ee_site_quat = [1, 0, 0, 0]               #   ... (wxyz)
     gravcomp = true                           # compensate gravity on the robot's bodies (default)
+    add_actuators = true                      # a PD position servo on every arm joint without an actuator
+                                              #   (models published without actuators; gains: pd_kp, pd_kd)
     max_joint_velocity = 2.0                  # rad/s, for the experts' IK (scalar or one per joint)
     wrist_camera = { pos = [0.05, 0, -0.05], target = [0, 0, 0.12], fovy = 80 }   # the `wrist` camera
 
@@ -109,7 +111,7 @@ _ONE_OF = (
 )
 _OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera",
              "gripper_actuator", "gripper_actuators", "home_key", "home", "base_pos", "base_quat", "pd_kp", "pd_kd",
-             "gripper_mjcf", "gripper_mount", "gripper_prefix")
+             "gripper_mjcf", "gripper_mount", "gripper_prefix", "add_actuators")
 
 
 @dataclass(frozen=True)
@@ -156,6 +158,7 @@ class RobotConfig:
     gripper_mjcf: Path | None = None  # a separate gripper MJCF, attached to the arm at gripper_mount
     gripper_mount: str | None = None  # the arm body the gripper's root is attached to (its frame)
     gripper_prefix: str = ""  # prepended to every name of the gripper file when it is attached
+    add_actuators: bool = False  # a PD servo on every arm joint no actuator drives
     ee_site_body: str | None = None
     ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ee_site_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -191,6 +194,12 @@ def _floats(where: Path, key: str, value: Any, n: int | None = None) -> tuple[fl
     if not all(math.isfinite(v) for v in out):  # NaN would reach the simulator as a control
         raise DemoError(where, f"'{key}' must be finite numbers, got {value!r}")
     return out
+
+
+def _flag(where: Path, key: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise DemoError(where, f"'{key}' must be true or false, got {value!r}")
+    return value
 
 
 def load_robot(path: str | Path | RobotConfig | None = None) -> RobotConfig:
@@ -271,6 +280,7 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         gripper_mjcf=gripper_mjcf,
         gripper_mount=str(raw["gripper_mount"]) if "gripper_mount" in raw else None,
         gripper_prefix=str(raw.get("gripper_prefix", "")),
+        add_actuators=_flag(where, "add_actuators", raw.get("add_actuators", False)),
         ee_site_body=raw.get("ee_site_body"),
         ee_site_pos=_floats(where, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
         ee_site_quat=_floats(where, "ee_site_quat", raw.get("ee_site_quat", [1, 0, 0, 0]), 4),  # type: ignore[arg-type]
@@ -392,6 +402,8 @@ def config_keys(robot: RobotConfig, mjcf: str, gripper_mjcf: str | None = None) 
         keys["gripper_mount"] = robot.gripper_mount
         if robot.gripper_prefix:
             keys["gripper_prefix"] = robot.gripper_prefix
+    if robot.add_actuators:
+        keys["add_actuators"] = True
     if robot.ee_site_body:
         keys["ee_site_body"] = robot.ee_site_body
     if robot.wrist_camera != DEFAULT_WRIST_CAMERA:

@@ -46,6 +46,8 @@ def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
     if robot.gripper_mjcf is not None:
         _attach_gripper(robot, spec)
     _name_actuators(spec)
+    if robot.add_actuators:
+        _add_arm_motors(robot, spec)
     if robot.ee_site_body:
         body = spec.body(robot.ee_site_body)
         if body is None:
@@ -53,6 +55,16 @@ def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
                                                "name a body of the hand (the EE site is added to it)")
         body.add_site(name=robot.ee_site, pos=list(robot.ee_site_pos), quat=list(robot.ee_site_quat), size=[0.006, 0, 0])
     return spec
+
+
+def _add_arm_motors(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
+    """``add_actuators = true``: a torque motor on every arm joint no actuator drives (models published without
+    actuators, which their packages add in Python); the PD layer makes each a position servo (``pd_kp``/``pd_kd``,
+    default from the inertia at home), as for any motor."""
+    driven = {a.target for a in spec.actuators if a.trntype == mujoco.mjtTrn.mjTRN_JOINT}
+    for joint in robot.arm_joints:
+        if joint not in driven:
+            spec.add_actuator(name=f"{joint}_servo", target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
 
 
 def _name_actuators(spec: mujoco.MjSpec) -> None:
@@ -288,6 +300,7 @@ def arm_actuator_for(model: mujoco.MjModel, joint_id: int, joint_name: str, wher
     a = _joint_actuator(model, joint_id)
     if a is None:
         raise DemoError(where, f"arm joint '{joint_name}' has no position actuator driving it (an actuator with "
-                               f"joint=\"{joint_name}\"); fix 'arm_joints' or give it a <position> or <motor> actuator")
+                               f"joint=\"{joint_name}\"); fix 'arm_joints', give it a <position> or <motor> actuator, or "
+                               "set add_actuators = true (a PD servo on every arm joint without one)")
     position_gain(model, a, model.actuator(a).name or f"#{a}", where)
     return a

@@ -129,3 +129,23 @@ def test_robot_check_points_the_base_towards_the_targets_it_misses(tmp_path: Pat
         assert f"move the base {way}" in message, message
         suggested = float(message.split("base_pos = [")[1].split(",")[0])
         assert abs(suggested) < abs(base_x)  # back towards the table
+
+
+def test_an_arm_published_without_actuators_runs_with_add_actuators(tmp_path: Path, one_line_error) -> None:
+    """Some packages add their arm's actuators in Python: the model has none; add_actuators = true adds PD servos."""
+    xml = (ASSETS / "panda.xml").read_text()
+    for i in range(1, 8):
+        start = xml.index(f'<position class="panda" name="actuator{i}"')
+        xml = xml[:start] + xml[xml.index("/>", start) + 2:]
+    xml = xml.replace('ctrl="0 0 0 -1.57079 0 1.57079 -0.7853 0.04"', 'ctrl="0.04"')  # the keyframe: the gripper's only
+    (tmp_path / "bare.xml").write_text(xml)
+    toml = (ASSETS / "panda.toml").read_text().replace('mjcf = "panda.xml"', 'mjcf = "bare.xml"')
+    (tmp_path / "bare.toml").write_text(toml)
+    one_line_error(["robot", "check", str(tmp_path / "bare.toml")], "has no position actuator", "add_actuators = true")
+    (tmp_path / "bare.toml").write_text(toml + "add_actuators = true\n")
+    env = make_env("reach", robot=load_robot(tmp_path / "bare.toml"))
+    try:
+        assert env.model.actuator("joint1_servo").id >= 0
+        assert run_expert(env, 0).success and run_expert(env, 1).success
+    finally:
+        env.close()
