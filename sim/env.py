@@ -150,17 +150,9 @@ class Env:
         self._state_size = mujoco.mj_stateSize(self.model, _STATE)
 
     def _make_action_spec(self) -> ActionSpec:
-        names = tuple(f"{j}.target" for j in self.robot.arm_joints) + ("gripper",)
-        units = ("rad",) * self.robot.n_arm + ("1",)
-        self._action_shape = (len(names),)
-        return ActionSpec(
-            "joint_pos",
-            names=names,
-            units=units,
-            frame="joint",
-            description="arm joint position targets + gripper closedness (0 open, 1 closed)",
-            params={"gripper": "closedness in [0, 1]: 0 = open, 1 = closed", "arm_joints": list(self.robot.arm_joints)},
-        )
+        spec = joint_pos_action(self.robot.arm_joints)
+        self._action_shape = (spec.dim,)
+        return spec
 
     def _make_features(self) -> dict[str, FeatureSpec]:
         arm = tuple(self.robot.arm_joints)
@@ -408,6 +400,19 @@ def _as_slice(index: np.ndarray) -> slice | np.ndarray:
     if index.shape[0] and np.array_equal(index, np.arange(index[0], index[0] + index.shape[0])):
         return slice(int(index[0]), int(index[0]) + index.shape[0])
     return index
+
+
+def joint_pos_action(arm_joints: Sequence[str]) -> ActionSpec:
+    """The action the simulator takes (and collection records): arm joint targets (rad) and the gripper's
+    closedness, named ``<joint>.target`` and ``gripper``."""
+    return ActionSpec(
+        "joint_pos",
+        names=tuple(f"{j}.target" for j in arm_joints) + ("gripper",),
+        units=("rad",) * len(arm_joints) + ("1",),
+        frame="joint",
+        description="arm joint position targets + gripper closedness (0 open, 1 closed)",
+        params={"gripper": "closedness in [0, 1]: 0 = open, 1 = closed", "arm_joints": list(arm_joints)},
+    )
 
 
 def make_env(

@@ -45,8 +45,10 @@ from demo.interop.lerobot.layout import (
     IMAGE_MODES,
     IMAGE_NAMES,
     INFO_PATH,
+    REWARD,
     STATE,
     STATS_PATH,
+    SUCCESS,
     TASKS_PATH,
     VIDEO_FILE_MB,
     VIDEO_PATH,
@@ -66,7 +68,7 @@ def plan_columns(meta: StoreMeta, images: str = "video") -> list[Column]:
     cameras become videos with ``images="video"`` where frames can be encoded, else embedded PNG."""
     if images not in IMAGE_MODES:
         raise ValueError(f"images must be one of {IMAGE_MODES}, got {images!r}")
-    taken = {STATE, DONE, *FRAME_COLUMNS}
+    taken = {STATE, DONE, SUCCESS, REWARD, *FRAME_COLUMNS}
     columns: list[Column] = []
     offset = 0
 
@@ -127,7 +129,8 @@ def _features(meta: StoreMeta, columns: list[Column], settings: VideoSettings) -
         else:
             names = list(spec.names) if spec.names is not None and len(spec.names) == c.width else None
             features[c.feature] = {"dtype": c.dtype, "shape": [c.width], "names": names}
-    for name, dtype in (("timestamp", "float32"), *((n, "int64") for n in FRAME_COLUMNS[1:]), (DONE, "bool")):
+    for name, dtype in (("timestamp", "float32"), *((n, "int64") for n in FRAME_COLUMNS[1:]), (DONE, "bool"),
+                        (SUCCESS, "bool"), (REWARD, "float32")):
         features[name] = {"dtype": dtype, "shape": [1], "names": None}
     return features
 
@@ -262,7 +265,7 @@ def export_lerobot(
     carried = carried_columns(src)
     report = InteropReport("lerobot", "export", store_path, out, episodes=int(len(chosen)))
 
-    task_column = src.column("task")
+    task_column, success_column = src.column("task"), src.column("success")
     tasks: dict[str, int] = {}
     for i in chosen:
         tasks.setdefault(str(task_column[i]), len(tasks))
@@ -282,7 +285,7 @@ def export_lerobot(
                 data = src.read_episode(int(src_index))
                 length = len(data["action"])
                 task_index = tasks[str(task_column[src_index])]
-                values = _frame_values(columns, data, new_index, index, task_index, fps)
+                values = _frame_values(columns, data, new_index, index, task_index, fps, bool(success_column[src_index]))
                 table = pa.table({name: _arrow(features[name], v) for name, v in values.items() if name not in videos})
                 chunk, file = writer.add(table)
                 row: dict[str, Any] = {
@@ -386,7 +389,8 @@ def _extras_list(meta: StoreMeta, carried: list[tuple[str, pa.DataType]]) -> lis
 
 
 def _frame_values(
-    columns: list[Column], data: dict[str, np.ndarray], episode: int, start: int, task_index: int, fps: float
+    columns: list[Column], data: dict[str, np.ndarray], episode: int, start: int, task_index: int, fps: float,
+    success: bool = False,
 ) -> dict[str, np.ndarray]:
     """One episode's LeRobot columns as numpy arrays (images stay uint8 [T, H, W, C])."""
     length = len(data["action"])
@@ -405,6 +409,8 @@ def _frame_values(
     values["index"] = start + frame_index
     values["task_index"] = np.full(length, task_index, dtype=np.int64)
     values[DONE] = frame_index == length - 1
+    values[SUCCESS] = values[DONE] & success  # the episode's outcome on its last frame (layout: SUCCESS)
+    values[REWARD] = values[SUCCESS].astype(np.float32)
     return values
 
 

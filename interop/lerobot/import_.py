@@ -35,11 +35,15 @@ from demo.interop.lerobot.files import (
     read_parquet,
     read_tasks,
 )
-from demo.interop.lerobot.layout import DATA_PATH, DONE, EPISODE_COLUMN_PREFIX, EXTRA_KEY, FRAME_COLUMNS, INFO_PATH, Column
+from demo.interop.lerobot.layout import (DATA_PATH, DONE, EPISODE_COLUMN_PREFIX, EXTRA_KEY, FRAME_COLUMNS, INFO_PATH, REWARD,
+                                         STATE, SUCCESS, Column)
 from demo.interop.lerobot.videos import VideoReader
 from demo.interop.untrusted import MAX_EPISODE_FRAMES, check_feature, check_info, check_meta, contained, inside, store_key
 from demo.interop.video import unencodable
 from demo.progress import Progress
+from demo.sim.env import joint_pos_action
+from demo.sim.robot import load_robot
+from demo.sim.robot_record import BUILTIN
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 
 # The Column.kind values a recorded key map may hold (see demo.interop.lerobot.layout.Column).
@@ -66,7 +70,7 @@ def import_lerobot(
     extras = info.get(EXTRA_KEY) if isinstance(info.get(EXTRA_KEY), dict) else None
     if extras is not None:
         columns, meta = _own_plan(extras, info_path)
-        used = {c.feature for c in columns} | set(FRAME_COLUMNS) | {DONE}
+        used = {c.feature for c in columns} | set(FRAME_COLUMNS) | {DONE, SUCCESS, REWARD}
         for name in info["features"]:
             if name not in used:
                 report.dropped.append(f"{name}: feature added after the export by demo (not in its key map)")
@@ -258,12 +262,20 @@ def _foreign_plan(info: dict[str, Any], info_path: Path, report: InteropReport) 
         if name == "action":
             width = math.prod(check_feature("action", shape, dtype, info_path)[0])
             labels = tuple(names) if names and len(names) == width else tuple(f"a{i}" for i in range(width))
-            action_spec = ActionSpec("unknown", labels, ("",) * width, frame="unknown",
-                                     description="imported from LeRobot; representation not recorded",
-                                     params={"source": "lerobot"})
+            action_spec = recognised_action(labels) or ActionSpec(
+                "unknown", labels, ("",) * width, frame="unknown",
+                description="imported from LeRobot; representation not recorded", params={"source": "lerobot"})
             if dtype != "float32":
                 report.dropped.append(f"action: {dtype} values stored as float32 (a store's actions are float32)")
             columns.append(Column("action", name, "array", (width,), "float32"))
+            continue
+        split = state_split(names) if name == STATE and dtype == "float32" else None
+        if split:  # a demo export whose "demo" block was dropped: its obs.* keys, from the element names
+            for short, start, stop, elements in split:
+                key = store_key("obs", short, taken, info_path)
+                columns.append(Column(key, STATE, "state", (stop - start,), "float32", start, stop))
+                specs[key] = FeatureSpec((stop - start,), "float32", f"LeRobot {STATE}[{start}:{stop}]",
+                                         names=elements if len(elements) == stop - start else None)
             continue
         prefix, rest = "info", name
         if name.startswith("observation."):
@@ -279,10 +291,38 @@ def _foreign_plan(info: dict[str, Any], info_path: Path, report: InteropReport) 
                                  names=tuple(names) if names and len(names) == math.prod(store_shape) else None)
     if action_spec is None:
         raise DemoError(info_path, "has no 'action' feature")
-    meta = StoreMeta(
-        fps=info["fps"], features=specs, action=action_spec, robot={"name": str(info.get("robot_type") or "unknown")[:200]}
-    )
+    robot_type = str(info.get("robot_type") or "unknown")[:200]
+    # The built-in arm is known by its name; any other robot's files travel only in the "demo" block.
+    robot = {"name": robot_type, "config": BUILTIN} if robot_type == load_robot(None).name else {"name": robot_type}
+    meta = StoreMeta(fps=info["fps"], features=specs, action=action_spec, robot=robot)
     return columns, meta
+
+
+def state_split(names: list[str] | None) -> list[tuple[str, int, int, tuple[str, ...]]] | None:
+    """``observation.state`` as demo exports name its elements (``joint_pos.joint1``, ..., ``gripper``): the
+    (key, start, stop, element names) of each ``obs.<key>`` it concatenates; None for names of another form
+    (no ``key.element`` name, or a key in two places)."""
+    if not names or not any("." in n for n in names):
+        return None
+    groups: list[tuple[str, int, int, tuple[str, ...]]] = []
+    for i, n in enumerate(names):
+        short, _, element = n.partition(".")
+        if groups and groups[-1][0] == short and element:
+            key, start, _, elements = groups[-1]
+            groups[-1] = (key, start, i + 1, (*elements, element))
+        else:
+            groups.append((short, i, i + 1, (element,) if element else ()))
+    keys = [g[0] for g in groups]
+    return groups if len(set(keys)) == len(keys) and all(keys) else None
+
+
+def recognised_action(names: tuple[str, ...]) -> ActionSpec | None:
+    """The action representation a demo export's action names give away (its "demo" block dropped by another
+    tool): ``<joint>.target``... + ``gripper`` is what the simulator takes, ``joint_pos``. (The end-effector
+    forms are :mod:`demo.convert`'s, which this layer does not read: they import as ``unknown``.)"""
+    if len(names) >= 2 and names[-1] == "gripper" and all(n.endswith(".target") for n in names[:-1]):
+        return joint_pos_action([n.removesuffix(".target") for n in names[:-1]])
+    return None
 
 
 def _image_shape(shape: tuple[Any, ...], names: list[str] | None, info_path: Path) -> tuple[int, int, int]:

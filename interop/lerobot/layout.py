@@ -71,6 +71,9 @@ EPISODE_COLUMN_PREFIX = "demo/"
 STATE = "observation.state"
 FRAME_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 DONE = "next.done"
+# Per-frame outcome columns LeRobot's own tools keep (and its pusht/aloha datasets carry): True / 1.0 on the
+# last frame of a successful episode. An import whose "demo" block was dropped reads success from them.
+SUCCESS, REWARD = "next.success", "next.reward"
 IMAGE_NAMES = ["height", "width", "channels"]
 IMAGE_MODES = ("video", "embed")  # how camera features are exported: MP4 videos or PNG in the parquet
 

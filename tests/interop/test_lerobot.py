@@ -593,3 +593,32 @@ def test_lerobot_reads_the_video_export(cameras: Path, tmp_path: Path) -> None:
         # LeRobot's own decoder (pyav backend) returns exactly the frames demo imports
         np.testing.assert_array_equal(got, np.concatenate([imported.read_episode(i)[key] for i in range(4)]))
         assert np.abs(got.astype(np.int16) - np.concatenate([source.read_episode(i)[key] for i in range(4)])).mean() < MEAN_BOUND
+
+
+def test_an_export_stripped_of_its_demo_metadata_still_trains_and_converts(tmp_path: Path) -> None:
+    """LeRobot's edit tools (delete_episodes, split_dataset, merge_datasets) drop info.json's "demo" block and
+    the episodes' demo/* columns. What they keep carries what matters: the action's and observation.state's
+    element names, next.success and the task string."""
+    store, root = tmp_path / "reach.zarr", tmp_path / "lr"
+    assert main(["collect", "--task", "reach", "--episodes", "6", "--seed", "0", "--out", str(store)]) == 0
+    export_lerobot(store, root)
+    info_path = root / "meta/info.json"
+    info = json.loads(info_path.read_text())
+    assert info["features"]["next.success"]["dtype"] == "bool" and "next.reward" in info["features"]
+    del info["demo"]  # what the edit tools leave
+    info_path.write_text(json.dumps(info))
+    for path in (root / "meta/episodes").rglob("*.parquet"):
+        table = pq.read_table(path)
+        pq.write_table(table.drop([c for c in table.column_names if c.startswith("demo/")]), path)
+    imported = tmp_path / "back.zarr"
+    import_lerobot(root, imported)
+    with EpisodeStore.open(store) as source, EpisodeStore.open(imported) as back:
+        assert back.meta.action.name == "joint_pos" and back.meta.action == source.meta.action
+        low_dim = [k for k in source.meta.features if k.startswith("obs.") and source.meta.features[k].dtype == "float32"]
+        assert [k for k in back.meta.features if k.startswith("obs.")] == low_dim  # the split, not one obs.state
+        np.testing.assert_array_equal(back.read_episode(2)["obs.joint_pos"], source.read_episode(2)["obs.joint_pos"])
+        assert back.column("success").tolist() == source.column("success").tolist()
+        assert back.column("task").tolist() == source.column("task").tolist()
+        assert back.meta.robot == {"name": "panda_prim", "config": "builtin"}
+    assert main(["convert", str(imported), "--to", "ee7", "--out", str(tmp_path / "ee7.zarr")]) == 0
+    assert main(["train", str(imported), "--steps", "20", "--out", str(tmp_path / "run")]) == 0
