@@ -111,11 +111,17 @@ class StoreReading:
                                                "damaged (demo info --check lists every damaged episode)")
 
     def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
-        """All frames of one episode: ``{key: array[length, ...]}``."""
+        """All frames of one episode: ``{key: array[length, ...]}``. Read whole (``keys`` None: what copies,
+        conversions and exports read), it is checked against its checksum: damage is refused where it is
+        read, not passed on under a fresh checksum (a CRC-32 of the bytes read, ~1% of the read's time)."""
         self._check_index(index)
         start = int(self._table.column("start")[index].as_py())
         stop = start + int(self._table.column("length")[index].as_py())
-        return self._read_keys(keys or list(self.meta.features), start, stop)
+        data = self._read_keys(keys or list(self.meta.features), start, stop)
+        if keys is None and self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
+            raise DemoError(self.path, f"episode {index}: its data does not match its checksum (a damaged chunk); "
+                                       "demo info --check lists every damaged episode")
+        return data
 
     def iter_episodes(
         self, keys: Sequence[str] | None = None, episodes: EpisodeSelection = None
@@ -190,12 +196,9 @@ class StoreReading:
         problems = []
         for index in range(self.num_episodes):
             try:
-                data = self.read_episode(index)
+                self.read_episode(index)  # read whole: checked against its checksum
             except DemoError as exc:
                 problems.append(f"episode {index}: {exc}")
-                continue
-            if self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
-                problems.append(f"episode {index}: data does not match its checksum (corrupted or missing chunk)")
         return problems
 
     # ------------------------------------------------------------------ summary

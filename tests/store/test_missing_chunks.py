@@ -1,4 +1,5 @@
-"""A deleted chunk file is refused where it is read, naming the episode, by every command that reads frames
+"""Damaged data is refused where it is read, naming the episode: a deleted chunk file by every command that
+reads frames
 (zarr would read it as zeros, which downstream commands would store with fresh, valid checksums)."""
 
 from __future__ import annotations
@@ -36,3 +37,20 @@ def test_every_reader_refuses_a_missing_chunk(damaged: Path, tmp_path: Path, one
     one_line_error(["info", str(damaged), "--check"], "damaged episode")
     for written in ("c.zarr", "e.zarr", "l", "run"):
         assert not (tmp_path / written).exists(), written  # nothing half-written
+
+
+def test_a_flipped_byte_is_refused_by_whole_episode_readers(tmp_path: Path, one_line_error) -> None:
+    """Uncompressed chunks have no codec checksum: the episode's own CRC-32 catches a changed byte."""
+    path = tmp_path / "s.zarr"
+    assert main(["collect", "--task", "reach", "--episodes", "6", "--seed", "0", "--out", str(path)]) == 0
+    with EpisodeStore.open(path) as store:
+        start = int(store.column("start")[3])
+    chunk = path / "data" / "action" / "c" / "0" / "0"
+    raw = bytearray(chunk.read_bytes())
+    raw[start * 8 * 4 + 5] ^= 0x10  # a bit of episode 3's first action (8 float32 a frame)
+    chunk.write_bytes(bytes(raw))
+    for argv in (["convert", str(path), "--to", "ee7", "--out", str(tmp_path / "e.zarr")],
+                 ["export", str(path), "--format", "lerobot", "--out", str(tmp_path / "l")]):
+        one_line_error(argv, "episode 3: its data does not match its checksum")
+    one_line_error(["info", str(path), "--check"], "1 damaged episode(s); first: episode 3")
+    assert not (tmp_path / "e.zarr").exists() and not (tmp_path / "l").exists()
