@@ -1,6 +1,6 @@
 """Damaged data is refused where it is read, naming the episode: a deleted chunk file by every command that
-reads frames
-(zarr would read it as zeros, which downstream commands would store with fresh, valid checksums)."""
+reads frames (zarr would read it as zeros, which downstream commands would store with fresh, valid
+checksums), a changed byte by every command that reads whole episodes."""
 
 from __future__ import annotations
 
