@@ -51,7 +51,8 @@ def curate(
     max_idle: str = typer.Option("0.2", help="Max fraction of (trimmed) frames in mid-episode pauses, or 'off'."),
     max_jerk: str = typer.Option(
         "400", help="Max jerk of the commanded action trajectory (its 3rd time-derivative, each dimension in its "
-                    "typical range, RMS over non-gripper dimensions, 75th percentile over frames) in range/s^3, or 'off'."
+                    "typical range, RMS over non-gripper dimensions, 75th percentile over frames) in range/s^3, or 'off' (at "
+                    "400, off for a Gymnasium environment's own command: its units are unknown)."
     ),
     min_consistency: str = typer.Option("0.5", help="Min share of sampled frames agreeing with other episodes, or 'off'."),
     max_novelty: str = typer.Option("off", help="Max mean distance to other episodes' states (normalised obs units), or 'off'."),

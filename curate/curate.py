@@ -20,6 +20,7 @@ already dropped as a failure.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -38,6 +39,7 @@ from demo.curate.signals import outliers as outlier_signals
 from demo.curate.signals import success as success_signals
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
+from demo.sim.foreign import ACTION_NAME as FOREIGN_ACTION
 from demo.store.episode_table import REASONS_COLUMN
 from demo.store import EpisodeStore
 from demo.store.location import StorePath, same_store, store_path
@@ -55,6 +57,9 @@ REASONS = ("failed", "idle", "jerky", "inconsistent", "novel", "duplicate", "len
 STEPS = ("load", "success", "idle", "jerk", "length", "consistency", "duplicates")
 
 
+DEFAULT_MAX_JERK = 400.0
+
+
 @dataclass
 class CurateConfig:
     """Filters (``None`` switches one off) and the signals' hyperparameters."""
@@ -62,7 +67,10 @@ class CurateConfig:
     drop_failed: bool = True
     trim_idle: bool = True  # cut idle runs at the start/end of kept episodes (an edit, recorded)
     max_idle: float | None = 0.2  # fraction of (trimmed) frames in mid-episode pauses
-    max_jerk: float | None = 400.0  # range/s^3 (see demo.curate.signals.jerk)
+    # range/s^3 (see demo.curate.signals.jerk); at this default, off for a Gymnasium environment's own command
+    # (demo.sim.foreign: its units are unknown, and the jerk of a velocity-like command, as Meta-World's scripted
+    # controllers switch it, says nothing of shakiness: 17 of 20 of their demonstrations read 1,000-7,000)
+    max_jerk: float | None = DEFAULT_MAX_JERK
     min_consistency: float | None = 0.5  # fraction of sampled frames that agree with neighbours
     max_novelty: float | None = None  # mean distance to other episodes' states (normalised obs units)
     max_length_z: float | None = 3.5  # robust z of log length within the task; long side only (a quick success is no flaw)
@@ -206,6 +214,8 @@ def analyse(
     """Signals and decisions for ``store`` without writing anything (``progress``: see :func:`compute_signals`)."""
     config = config or CurateConfig()
     config.validate()
+    if store.meta.action.name == FOREIGN_ACTION and config.max_jerk == DEFAULT_MAX_JERK:
+        config = dataclasses.replace(config, max_jerk=None)  # see CurateConfig.max_jerk
     signals, fd, timing = compute_signals(store, config, progress, total)
     t0 = time.perf_counter()
     kept, reasons, codes, trim = decide(signals, fd.lengths, config)

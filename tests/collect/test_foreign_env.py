@@ -205,3 +205,15 @@ def test_eval_names_the_missing_environment_package(tmp_path: Path, user_module:
     sys.modules.pop("point_reach", None)
     one_line_error(["eval", str(tmp_path / "run"), "--episodes", "2"], "cannot import 'point_reach'")
     assert (tmp_path / "run" / "run.json").read_text() == run_json
+
+
+def test_curation_does_not_judge_the_jerk_of_an_environments_own_command(tmp_path: Path, user_module: str) -> None:
+    """Its units are unknown (a velocity-like command's jerk says nothing of shakiness): off at the default,
+    applied when asked for."""
+    from demo.curate.curate import CurateConfig, curate
+
+    assert collect(tmp_path / "p.zarr") == 0
+    default = curate(tmp_path / "p.zarr")
+    assert default.config.max_jerk is None and "jerky" not in {c for codes in default.codes for c in codes}
+    asked = curate(tmp_path / "p.zarr", config=CurateConfig(max_jerk=1e-6))
+    assert any("jerky" in codes for codes in asked.codes)  # judged when a threshold is given
