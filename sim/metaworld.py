@@ -30,6 +30,7 @@ needs it, and a command that does without it says so in one line.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium
@@ -138,6 +139,9 @@ class CameraObservation(gymnasium.ObservationWrapper):
 def expert(env: gymnasium.Env) -> Any:
     """The scripted policy of the task ``env`` runs, for one episode (``act(obs) -> action``)."""
     from metaworld.policies import ENV_POLICY_MAP  # deferred: an optional dependency
+
+    # Its policies warn at every construction that their gains may exceed the [-1, 1] the env clips to: by design
+    warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high", category=UserWarning)
 
     task = (env.spec.kwargs if env.spec is not None else {}).get("env_name")
     if task not in ENV_POLICY_MAP:
