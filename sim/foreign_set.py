@@ -71,10 +71,6 @@ class ForeignEnvSet:
         self.active = self.member(index % len(self.tasks))
         return self.active
 
-    def task_of(self, index: int) -> str:
-        """The task name of episode ``index`` (without building its environment)."""
-        return self.tasks[index % len(self.tasks)]
-
     def record(self) -> dict[str, Any]:
         """What a store and a run say of the set: the first member's record, with the set's name and members."""
         return {**self.member(0).record(), "name": self.name.removeprefix(ENV_PREFIX), "id": None,
