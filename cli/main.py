@@ -1,15 +1,24 @@
 """`demo`: the command-line entry point. Each subcommand lives in its own module and only parses
-flags and calls a library function; errors become one line on stderr."""
+flags and calls a library function; errors become one line on stderr.
+
+A run imports only the module of the command it runs (:data:`COMMANDS`): each one pulls in its part of
+the library (mujoco, zarr, mink, torch), and `demo --help` should answer in a fraction of a second."""
 
 from __future__ import annotations
 
+import ast
 import enum
+import importlib
+import importlib.util
+import inspect
 import os
 import re
 import shlex
 import sys
 import traceback
 import warnings
+from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 import typer
@@ -29,6 +38,7 @@ from typer._click.exceptions import (  # typer >= 0.29 vendors click (pinned in 
 from demo import __version__
 from demo.cli.output import err_console
 from demo.errors import DemoError, one_line, os_error
+from demo.verify import NO_VERIFY_ENV
 
 _option_type = typer.core.TyperOption.display_type_rich
 
@@ -70,13 +80,59 @@ def _version(value: bool) -> None:
 def _root(
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
     debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors."),
+    no_verify: bool = typer.Option(False, "--no-verify", help=(
+        "Read stores without checking them (missing chunk files, episode checksums), for a user who knows "
+        "the damage; `demo info --check` still checks.")),
 ) -> None:
     global _DEBUG
     _DEBUG = debug or bool(os.environ.get("DEMO_DEBUG"))
+    if no_verify:
+        os.environ[NO_VERIFY_ENV] = "1"  # the environment: worker processes inherit it (demo.verify)
 
 
-def _register() -> None:
-    from demo.cli import commands  # deferred: cycle (each command module imports app from here)  # noqa: F401
+# Each top-level command -> the module of demo.cli that defines it (on ``app``, when imported), in the
+# order `demo --help` lists them: groups last, where typer puts them.
+COMMANDS = {
+    "collect": "collect", "info": "info", "quickstart": "quickstart", "export": "export", "import": "import_",
+    "view": "view", "curate": "curate", "convert": "convert", "teleop": "teleop", "train": "train", "eval": "eval",
+    "bench": "bench", "robot": "robot", "irl": "irl",
+}
+
+
+def _register(names: Iterable[str] = COMMANDS) -> None:
+    """Define the commands ``names`` on ``app`` (imported here, not at the top: each module imports ``app``)."""
+    for name in names:
+        importlib.import_module(f"demo.cli.{COMMANDS[name]}")
+
+
+def _command_group(argv: list[str]) -> typer.core.TyperGroup:
+    """The click group that runs ``demo ARGV``, holding what ARGV needs and no more: the command it
+    names; for the listing (`demo`, `demo --help`, a mistyped name and its suggestions), a stand-in
+    for every command that carries only its help; for `demo --version`, nothing."""
+    name = next((arg for arg in argv if not arg.startswith("-")), None)  # demo's own options are all flags
+    options = argv[: argv.index(name)] if name else argv
+    answer = next((o for o in options if o in ("--help", "--version")), None)  # eager: the first given answers
+    if answer is None and name in COMMANDS:
+        _register([name])
+    group = typer.main.get_command(app)
+    assert isinstance(group, typer.core.TyperGroup)  # app has a callback: always a group
+    if answer == "--help" or (answer is None and name not in COMMANDS):
+        for listed, module in COMMANDS.items():
+            group.commands.setdefault(listed, typer.core.TyperCommand(listed, help=_help(module)))
+    return group
+
+
+def _help(module: str) -> str:
+    """The help typer shows for the command that ``demo.cli.<module>`` defines, read from the source
+    (importing the module would import the library under it, to print one line): the docstring of
+    the function under ``@app.command``, or the ``help=`` of the group's ``typer.Typer``."""
+    path = Path(importlib.util.find_spec(f"demo.cli.{module}").origin)
+    for node in ast.walk(ast.parse(path.read_text(), path)):
+        if isinstance(node, ast.FunctionDef) and any(ast.unparse(d).startswith("app.command(") for d in node.decorator_list):
+            return ast.get_docstring(node) or ""
+        if isinstance(node, ast.Call) and ast.unparse(node.func) == "typer.Typer":
+            return inspect.cleandoc(next(ast.literal_eval(k.value) for k in node.keywords if k.arg == "help"))
+    raise LookupError(f"{path}: defines no command on app")
 
 
 def commands() -> dict[str, Any]:
@@ -101,15 +157,20 @@ def main(argv: list[str] | None = None) -> int:
     ``error: <file>: <problem>`` (``--debug``: the traceback too), whatever the terminal width."""
     global _ARGV
     _ARGV = list(sys.argv[1:] if argv is None else argv)
-    _register()
+    verify_setting = os.environ.get(NO_VERIFY_ENV)  # --no-verify lasts one command (main is called in-process too)
     # Library warnings (torch, zarr, h5py) are held back: a failed command prints its one line alone.
     with warnings.catch_warnings(record=True) as caught:
         try:
-            rc = app(args=argv, standalone_mode=False)
+            rc = _command_group(_ARGV)(args=_ARGV, standalone_mode=False)
         except BaseException as exc:  # noqa: BLE001 - every failure ends here, as one line
             if _DEBUG:
                 _show_warnings(caught)
             return _failure(exc)
+        finally:
+            if verify_setting is None:
+                os.environ.pop(NO_VERIFY_ENV, None)
+            else:
+                os.environ[NO_VERIFY_ENV] = verify_setting
     _show_warnings(caught)
     return rc if isinstance(rc, int) else 0
 

@@ -172,7 +172,9 @@ class EnvSpec:
         """The env wrapped in ``FlattenObservation``: for evaluation, its own ending rule (success held
         0.5 s, or the horizon); for ``training``, ``hold_success_s=None`` (every episode runs to the horizon)."""
         extra = {"hold_success_s": None} if training else {}
-        return gymnasium.wrappers.FlattenObservation(gymnasium.make(self.env_id, **self.options, **extra))
+        # store_layout: the observation keys are the store's feature names, which the demonstrations are read by.
+        return gymnasium.wrappers.FlattenObservation(gymnasium.make(self.env_id, **self.options, store_layout=True,
+                                                                    **extra))
 
     def to_json(self) -> dict[str, Any]:
         return {"env_id": self.env_id, "robot": self.robot_name,

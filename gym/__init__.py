@@ -18,7 +18,7 @@ from __future__ import annotations
 import gymnasium
 
 from demo.gym.env import DemoEnv
-from demo.gym.expert import GymExpert
+from demo.gym.expert import GymExpert, ObservationExpert
 from demo.sim.tasks import TASK_NAMES
 
 ENTRY_POINT = "demo.gym.env:DemoEnv"
@@ -41,4 +41,4 @@ def register_all() -> None:
 
 register_all()
 
-__all__ = ["DemoEnv", "ENV_IDS", "GymExpert", "env_id", "register_all"]
+__all__ = ["DemoEnv", "ENV_IDS", "GymExpert", "ObservationExpert", "env_id", "register_all"]

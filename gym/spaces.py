@@ -5,8 +5,9 @@ Observations: a ``Dict`` over the env's ``obs.*`` features (:attr:`demo.sim.env.
 keys and dtypes are those a store collected from the same env records, each low-dim feature flattened to
 one dimension (a store's ``obs.object_pos`` of shape (n, 3) is (3 n,) here, as trajectory and RL libraries
 take it): low-dim state (float32, m, rad, rad/s, quaternions wxyz in the robot base frame) bounded where
-the bound is physical (``OBS_BOUNDS``: joint positions by the joints' limits, the gripper's closedness in
-[0, 1], quaternions in [-1, 1], positions within +-``REACH`` m of the base), unbounded otherwise
+the bound is physical (:func:`feature_bounds`: joint positions by the joints' limits, the gripper's measured
+closedness in [0, 1] widened by ``GRIPPER_SLACK`` (fingers pressed shut or spread by contact overshoot
+their open and closed positions slightly: -0.0003 and 1.004 seen on the built-in arm), quaternions in [-1, 1], positions within +-``REACH`` m of the base), unbounded otherwise
 (velocities); camera images ``obs.image_<camera>`` as uint8 ``Box`` es in [0, 255] of shape
 [height, width, 3].
 
@@ -35,6 +36,7 @@ from demo.convert.representations import ActionFormat
 from demo.store import FeatureSpec
 
 JOINT_SPEED = 2 * math.pi  # rad/s
+GRIPPER_SLACK = 0.05  # of the measured gripper closedness, beyond [0, 1] (module docstring)
 REACH = 1.5  # m, |x|, |y|, |z| of an absolute EE position in the base frame
 EE_STEP = 0.05  # m per control step (1 m/s at 20 Hz)
 ROT_STEP = 0.5  # rad per control step (10 rad/s at 20 Hz)
@@ -47,7 +49,7 @@ def feature_bounds(key: str, size: int, joint_limits: np.ndarray) -> tuple[np.nd
     if key == "obs.joint_pos" and size == len(joint_limits):
         low, high = joint_limits[:, 0].copy(), joint_limits[:, 1].copy()
     elif key == "obs.gripper":
-        low[:], high[:] = 0.0, 1.0
+        low[:], high[:] = -GRIPPER_SLACK, 1.0 + GRIPPER_SLACK
     elif key.endswith("_quat"):
         low[:], high[:] = -1.0, 1.0
     elif key.endswith("_pos"):

@@ -22,7 +22,7 @@ import pyarrow as pa
 
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
-from demo.store import EpisodeStore, FeatureSpec, swap
+from demo.store import EpisodeStore, swap
 from demo.store.episode_table import FIXED_COLUMNS, MASK_PREFIX
 from demo.store.location import StorePath, same_store
 from demo.store.writer_lock import WriterLock
@@ -33,7 +33,6 @@ T = TypeVar("T")
 DERIVED_COLUMNS = ("episode_index", "start", "length", "duration_s", "crc32")
 # Fixed columns passed to ``append_episodes``; every other column is restored with its arrow type.
 APPEND_COLUMNS = ("success", "seed", "source", "operator", "task")
-IMAGE_CHANNELS = (1, 3, 4)
 
 
 @dataclass
@@ -90,11 +89,6 @@ class InteropReport:
             "notes": list(self.notes),
             "videos": [v.to_json() for v in self.videos],
         }
-
-
-def is_image(spec: FeatureSpec) -> bool:
-    """Camera images: uint8 ``[H, W, C]`` with 1, 3 or 4 channels."""
-    return spec.dtype == "uint8" and len(spec.shape) == 3 and spec.shape[2] in IMAGE_CHANNELS
 
 
 def short_name(key: str) -> str:

@@ -146,7 +146,7 @@ class EnvPool:
         try:
             for _ in range(n):
                 self.envs.append(DemoEnv(config.task, robot=config.robot, action=config.action, hold_success_s=None,
-                                         flat_obs=False,  # the store's shapes: the observation spec and rewards read them
+                                         store_layout=True,  # the store's names and shapes: the observation spec and rewards read them
                                          **config.task_options))
         except BaseException:
             self.close()

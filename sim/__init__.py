@@ -8,16 +8,25 @@
 
 See :mod:`demo.sim.env` for the action/observation conventions, :mod:`demo.sim.scene` for frames,
 :mod:`demo.sim.robot` for robot configs and :mod:`demo.sim.task` for what experts promise.
+
+The names above are imported on first use: a module that needs only a part of demo.sim (`demo info`
+reads a robot record) does not pay for the env, the tasks and gymnasium.
 """
 
+import importlib
 import os
+from typing import Any
 
 # Headless offscreen rendering; must be decided before mujoco is first imported.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from demo.sim.env import Env, make_env  # noqa: E402
-from demo.sim.robot import RobotConfig, load_robot  # noqa: E402
-from demo.sim.task import Expert, Task  # noqa: E402
-from demo.sim.tasks import TASK_NAMES, TASKS  # noqa: E402
+# The names `from demo.sim import ...` gives -> the module that defines each.
+_DEFINED_IN = {"Env": "env", "make_env": "env", "RobotConfig": "robot", "load_robot": "robot", "Expert": "task",
+               "Task": "task", "TASKS": "tasks", "TASK_NAMES": "tasks"}
+__all__ = list(_DEFINED_IN)
 
-__all__ = ["Env", "Expert", "RobotConfig", "Task", "TASKS", "TASK_NAMES", "load_robot", "make_env"]
+
+def __getattr__(name: str) -> Any:
+    if name not in _DEFINED_IN:
+        raise AttributeError(f"module 'demo.sim' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"demo.sim.{_DEFINED_IN[name]}"), name)

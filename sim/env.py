@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -34,7 +34,6 @@ from demo.errors import DemoError
 from demo.sim.foreign import ENV_PREFIX, ForeignEnv, is_foreign
 from demo.sim.foreign_set import ForeignEnvSet, set_members
 from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
-from demo.sim.ik import ArmIK
 from demo.sim.numeric import clip
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
@@ -43,6 +42,9 @@ from demo.sim.scene import compile_scene, scene_spec
 from demo.sim.task import Expert, Task
 from demo.sim.tasks import TASKS
 from demo.store import ActionSpec, FeatureSpec
+
+if TYPE_CHECKING:
+    from demo.sim.ik import ArmIK
 
 CONTROL_HZ = 20.0
 N_SUBSTEPS = 25
@@ -361,8 +363,11 @@ class Env:
 
     @property
     def ik(self) -> ArmIK:
-        """The experts' IK solver for this scene (built on first use)."""
+        """The experts' IK solver for this scene (built on first use: mink takes half a second to import,
+        and replaying, viewing or describing a store never solves IK)."""
         if self._ik is None:
+            from demo.sim.ik import ArmIK
+
             self._ik = ArmIK(self._spec, self.robot, 1.0 / self.fps, avoid_geoms=self.task.avoid_geoms)
         return self._ik
 

@@ -22,6 +22,7 @@ from demo.store.layout import IMAGE_PREFIX, TABLE_FILE
 from demo.store.location import StorePath
 from demo.store.spec import StoreMeta
 from demo.store.zarr_io import gather
+from demo.verify import verifying
 
 # What :meth:`StoreReading.select` takes: None (all), a mask name, a boolean array or indices.
 EpisodeSelection = None | str | Sequence[int] | np.ndarray
@@ -73,15 +74,18 @@ class StoreReading:
     def _read(self, key: str, start: int, stop: int) -> np.ndarray:
         return self._read_keys([key], start, stop)[key]
 
-    def _read_keys(self, keys: Sequence[str], start: int, stop: int) -> dict[str, np.ndarray]:
-        """Frames ``[start, stop)`` of each key, read concurrently (on object storage: one round trip)."""
+    def _read_keys(self, keys: Sequence[str], start: int, stop: int, check: bool | None = None) -> dict[str, np.ndarray]:
+        """Frames ``[start, stop)`` of each key, read concurrently (on object storage: one round trip);
+        ``check``: refuse frames whose chunk file is missing (default :func:`verifying`)."""
+        check = verifying() if check is None else check
         arrays = [self.array(k) for k in keys]
         values = sync(gather(*(a.async_array.getitem(slice(start, stop)) for a in arrays)))
         out = {}
         for key, array, value in zip(keys, arrays, values):
             if isinstance(value, BaseException):
                 raise DemoError(self.path / "data" / key, f"cannot be read, corrupted chunk? ({first_line(value)})")
-            self._check_chunks(key, array, start, stop)
+            if check:
+                self._check_chunks(key, array, start, stop)
             out[key] = np.asarray(value)
         return out
 
@@ -108,19 +112,23 @@ class StoreReading:
                 episode = int(np.searchsorted(self.episode_ends, first, side="right"))
                 raise DemoError(folder / name, f"is missing: episode {episode} (frames {first}-"
                                                f"{min(stop, (chunk + 1) * rows) - 1}) cannot be read; the store is "
-                                               "damaged (demo info --check lists every damaged episode)")
+                                               "damaged (demo info --check lists every damaged episode, demo "
+                                               "--no-verify reads it anyway)")
 
-    def read_episode(self, index: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    def read_episode(self, index: int, keys: Sequence[str] | None = None, check: bool | None = None
+                     ) -> dict[str, np.ndarray]:
         """All frames of one episode: ``{key: array[length, ...]}``. Read whole (``keys`` None: what copies,
         conversions and exports read), it is checked against its checksum: damage is refused where it is
-        read, not passed on under a fresh checksum (a CRC-32 of the bytes read, ~1% of the read's time)."""
+        read, not passed on under a fresh checksum (a CRC-32 of the bytes read, ~1% of the read's time).
+        ``check``: whether to check (default :func:`verifying`: on unless ``demo --no-verify``)."""
         self._check_index(index)
+        check = verifying() if check is None else check
         start = int(self._table.column("start")[index].as_py())
         stop = start + int(self._table.column("length")[index].as_py())
-        data = self._read_keys(keys or list(self.meta.features), start, stop)
-        if keys is None and self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
+        data = self._read_keys(keys or list(self.meta.features), start, stop, check)
+        if keys is None and check and self._checksum(data) != int(self._table.column("crc32")[index].as_py()):
             raise DemoError(self.path, f"episode {index}: its data does not match its checksum (a damaged chunk); "
-                                       "demo info --check lists every damaged episode")
+                                       "demo info --check lists every damaged episode, demo --no-verify reads it anyway")
         return data
 
     def iter_episodes(
@@ -196,7 +204,7 @@ class StoreReading:
         problems = []
         for index in range(self.num_episodes):
             try:
-                self.read_episode(index)  # read whole: checked against its checksum
+                self.read_episode(index, check=True)  # read whole: checked against its checksum
             except DemoError as exc:
                 problems.append(f"episode {index}: {exc}")
         return problems

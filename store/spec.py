@@ -72,6 +72,14 @@ class FeatureSpec:
         return np.dtype(self.dtype)
 
 
+IMAGE_CHANNELS = (1, 3, 4)  # gray, RGB, RGBA
+
+
+def is_image(spec: FeatureSpec) -> bool:
+    """Camera images: uint8 ``[H, W, C]`` with 1, 3 or 4 channels."""
+    return spec.dtype == "uint8" and len(spec.shape) == 3 and spec.shape[2] in IMAGE_CHANNELS
+
+
 @dataclass(frozen=True)
 class ActionSpec:
     """How the ``action`` array is to be read, so that ``convert`` and ``train`` never guess.

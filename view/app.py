@@ -32,10 +32,10 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError, first_line
-from demo.interop.common import is_image
 from demo.sim import TASK_NAMES, make_env
 from demo.sim.robot_record import resolve_robot
 from demo.store import EpisodeStore, StoreMeta
+from demo.store.spec import is_image
 from demo.view.flags import EpisodeFlags
 from demo.view.scene import MujocoScene, state_mismatch
 

@@ -25,7 +25,6 @@ from demo.interop.common import (
     camera_name,
     carried_columns,
     check_not_same,
-    is_image,
     now,
     short_name,
     staged_output,
@@ -61,6 +60,7 @@ from demo.progress import Progress
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.episode_store import EpisodeSelection
 from demo.store.location import store_path as locate_store
+from demo.store.spec import is_image
 
 
 def plan_columns(meta: StoreMeta, images: str = "video") -> list[Column]:

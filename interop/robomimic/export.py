@@ -18,7 +18,6 @@ from demo.interop.common import (
     InteropReport,
     carried_columns,
     check_not_same,
-    is_image,
     now,
     short_name,
     staged_output,
@@ -31,6 +30,7 @@ from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.episode_store import EpisodeSelection
 from demo.store.episode_table import MASK_PREFIX
 from demo.store.location import store_path as locate_store
+from demo.store.spec import is_image
 
 
 def _key_paths(meta: StoreMeta) -> dict[str, str]:

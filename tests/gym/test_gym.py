@@ -13,6 +13,7 @@ from gymnasium.utils.env_checker import check_env
 import demo.gym
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
+from demo.gym.trajectories import trajectories
 from demo.seeds import episode_seed
 from demo.sim.avoid import OBSTACLE_HALF
 from demo.sim.rollout import run_expert
@@ -63,7 +64,7 @@ def test_check_env_cameras(task: str) -> None:
 def test_check_env_ee7_and_task_options() -> None:
     checked("demo/Pick-v0", action="ee7")
     env = gymnasium.make("demo/Stack-v0", blocks=2)
-    assert env.observation_space["obs.object_pos"].shape == (6,)  # a store's (2, 3), flat
+    assert env.observation_space["object_pos"].shape == (6,)  # a store's (2, 3), flat
     assert env.unwrapped.horizon == 260 and env.spec.max_episode_steps == 260  # the options' horizon
     env.close()
 
@@ -73,10 +74,11 @@ def test_spaces_and_first_observation_match_a_collected_store(tmp_path: Path) ->
     collect_scripted(config, tmp_path / "p.zarr", workers=0)
     store = EpisodeStore.open(tmp_path / "p.zarr")
     env = gymnasium.make("demo/Pick-v0", cameras=["front@32x32"])
-    stored = {k: f for k, f in store.meta.features.items() if k.startswith("obs.")}
+    # Named as the store's features less their "obs." prefix.
+    stored = {k.removeprefix("obs."): f for k, f in store.meta.features.items() if k.startswith("obs.")}
     assert set(env.observation_space.spaces) == set(stored)
     for key, space in env.observation_space.spaces.items():
-        shape = stored[key].shape if key.startswith("obs.image_") else (int(np.prod(stored[key].shape)),)  # low-dim: flat
+        shape = stored[key].shape if key.startswith("image_") else (int(np.prod(stored[key].shape)),)  # low-dim: flat
         assert (space.shape, space.dtype) == (shape, np.dtype(stored[key].dtype)), key
     assert env.action_space.shape == (store.meta.action.dim,) and env.unwrapped.action_spec == store.meta.action
     # The reset seed is the store's seed column: the first observation is the stored frame 0, bit for bit.
@@ -84,9 +86,9 @@ def test_spaces_and_first_observation_match_a_collected_store(tmp_path: Path) ->
     assert seed == episode_seed(3, 0)
     obs, info = env.reset(seed=seed)
     assert info["seed"] == seed
-    frame0 = store.read_episode(0, list(stored))
+    frame0 = store.read_episode(0, [f"obs.{k}" for k in stored])
     for key in stored:
-        np.testing.assert_array_equal(obs[key], frame0[key][0].reshape(obs[key].shape), err_msg=key)
+        np.testing.assert_array_equal(obs[key], frame0[f"obs.{key}"][0].reshape(obs[key].shape), err_msg=key)
         assert env.observation_space[key].contains(obs[key]), key
     env.close()
 
@@ -124,7 +126,7 @@ def test_an_episode_terminates_when_collection_would_end_it() -> None:
 
     # Holding still never succeeds: truncated exactly at the horizon.
     obs, _ = env.reset(seed=seed)
-    hold = np.r_[obs["obs.joint_pos"], obs["obs.gripper"]]
+    hold = np.r_[obs["joint_pos"], obs["gripper"]]
     for t in range(env.horizon):
         obs, reward, terminated, truncated, info = env.step(hold)
         assert not terminated and reward == 0.0 and truncated == (t + 1 == env.horizon)
@@ -137,7 +139,7 @@ def test_a_collision_on_avoid_terminates() -> None:
     sim = env.sim
     ee = sim.ee_pose()[0]  # bring the obstacle to the hand
     sim.set_mocap_pose(sim.task.obstacle_mocap, np.array([ee[0] + 0.09, ee[1], OBSTACLE_HALF[2]]))
-    obs, reward, terminated, truncated, info = env.step(np.r_[obs["obs.joint_pos"], 0.0])
+    obs, reward, terminated, truncated, info = env.step(np.r_[obs["joint_pos"], 0.0])
     assert terminated and not truncated and info == {"success": False, "failure": "collision"} and reward == 0.0
     env.close()
 
@@ -154,13 +156,16 @@ def test_same_seed_same_observations() -> None:
     a, b, c = trajectory(7), trajectory(7), trajectory(8)
     for x, y in zip(a, b):
         assert all(np.array_equal(x[k], y[k]) for k in x)
-    assert not np.array_equal(a[0]["obs.object_pos"], c[0]["obs.object_pos"])
+    assert not np.array_equal(a[0]["object_pos"], c[0]["object_pos"])
 
 
 def test_options_and_bad_input() -> None:
-    env = gymnasium.make("demo/Reach-v0", obs_keys=["obs.ee_pos", "obs.goal_pos"])
+    env = gymnasium.make("demo/Reach-v0", obs_keys=["obs.ee_pos", "goal_pos"])  # store names or keys
     obs, _ = env.reset(seed=0)
-    assert set(obs) == {"obs.ee_pos", "obs.goal_pos"}
+    assert set(obs) == {"ee_pos", "goal_pos"}
+    env.close()
+    env = gymnasium.make("demo/Reach-v0", obs_keys=["ee_pos"], store_layout=True)
+    assert set(env.reset(seed=0)[0]) == {"obs.ee_pos"}
     with pytest.raises(DemoError, match="non-finite action"):
         env.step(np.full(env.action_space.shape, np.nan, dtype=np.float32))
     with pytest.raises(DemoError, match="unknown reset option"):
@@ -185,8 +190,8 @@ def test_the_seams_rl_and_trajectory_libraries_touch(tmp_path: Path) -> None:
     try:
         space = env.observation_space
         assert all(len(b.shape) == 1 for b in space.spaces.values())
-        assert np.isfinite(space["obs.joint_pos"].low).all() and space["obs.gripper"].high.tolist() == [1.0]
-        assert space["obs.object_quat"].low.tolist() == [-1.0] * 4 and np.isfinite(space["obs.object_pos"].high).all()
+        assert np.isfinite(space["joint_pos"].low).all() and space["gripper"].high.tolist() == [np.float32(1.05)]
+        assert space["object_quat"].low.tolist() == [-1.0] * 4 and np.isfinite(space["object_pos"].high).all()
         assert env.spec.max_episode_steps == env.unwrapped.horizon
         assert env.action_space.low.tolist() == [-1.0] * 8 and env.action_space.high.tolist() == [1.0] * 8
         obs, _ = env.reset(seed=episode_seed(0, 0))
@@ -209,3 +214,66 @@ def test_the_seams_rl_and_trajectory_libraries_touch(tmp_path: Path) -> None:
     (tmp_path / "cobot.toml").write_text(BUILTIN_CONFIG.read_text().replace('"panda.xml"', '"cobot.xml"'))
     with pytest.raises(DemoError, match="normalize_actions: the joint_pos action has an unbounded dimension"):
         gymnasium.make("demo/Pick-v0", normalize_actions=True, robot=str(tmp_path / "cobot.toml"))
+
+
+def test_the_expert_answers_from_observations_over_a_vector_env() -> None:
+    """``expert_policy()`` drives gymnasium's own vector env, rows in any order, and succeeds on every
+    episode of every task, as the privileged expert does; it refuses what it cannot answer."""
+    for task in TASK_NAMES:
+        env_id = demo.gym.ENV_IDS[task]
+        envs = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(env_id, sim_state=True)] * 2)
+        probe = gymnasium.make(env_id, sim_state=True)
+        policy = probe.unwrapped.expert_policy()
+        obs, _ = envs.reset(seed=[episode_seed(5, 0), episode_seed(5, 1)])
+        done, success = np.zeros(2, bool), np.zeros(2, bool)
+        while not done.all():
+            flipped = {k: v[::-1] for k, v in obs.items()}  # rows in another order: answers follow the rows
+            actions = policy.predict(flipped)[0][::-1]
+            assert np.array_equal(actions, policy.predict(obs)[0])
+            obs, _, terminated, truncated, info = envs.step(actions)
+            success |= terminated & ~done & info["success"]
+            done |= terminated | truncated
+        assert success.all(), task
+        policy.close()
+        probe.close()
+        envs.close()
+    env = gymnasium.make("demo/Reach-v0")
+    with pytest.raises(DemoError, match="make the env with sim_state=True"):
+        env.unwrapped.expert_policy()
+    env.close()
+    with pytest.raises(DemoError, match="ee7 action is relative to the last executed command"):
+        gymnasium.make("demo/Reach-v0", sim_state=True, action="ee7").unwrapped.expert_policy()
+    pick = gymnasium.make("demo/Pick-v0", sim_state=True)
+    policy = pick.unwrapped.expert_policy()
+    obs, _ = gymnasium.make("demo/Reach-v0", sim_state=True).reset(seed=0)
+    with pytest.raises(DemoError, match="not a batch of this env's"):
+        policy.act(obs)  # a reach state for the pick expert
+    pick.close()
+
+
+def test_trajectories_rebuild_final_observations(tmp_path: Path) -> None:
+    """A store's episodes with their final observations: stepping the actions live from the episode's seed
+    gives every observation of the trajectory, the final one included, bit for bit."""
+    config = CollectConfig(task="push", episodes=2, seed=1, cameras=(("front", 32, 32),))
+    collect_scripted(config, tmp_path / "p.zarr", workers=0)
+    env = gymnasium.make("demo/Push-v0", cameras=["front@32x32"])
+    with EpisodeStore.open(tmp_path / "p.zarr") as store:
+        trajs = list(trajectories(store, env))
+        assert len(trajs) == 2 and all(t.terminal for t in trajs)
+        for t in trajs:
+            assert all(len(v) == len(t.actions) + 1 for v in t.obs.values())
+            obs, _ = env.reset(seed=t.seed)
+            for step, action in enumerate(t.actions):
+                for key in obs:
+                    np.testing.assert_array_equal(obs[key], t.obs[key][step], err_msg=key)
+                obs, *_ = env.step(action)
+            for key in obs:
+                np.testing.assert_array_equal(obs[key], t.obs[key][-1], err_msg=key)
+        for other, needle in [(gymnasium.make("demo/Pick-v0"), "holds 'push' episodes"),
+                              (gymnasium.make("demo/Push-v0", action="ee7"), "not this env's absolute ee7"),
+                              (gymnasium.make("demo/Push-v0", cameras=["side@32x32"]), "does not record obs.image_side"),
+                              (gymnasium.make("demo/Push-v0", block_size=0.06), "seed does not give its recorded first")]:
+            with pytest.raises(DemoError, match=needle):
+                next(trajectories(store, other))
+            other.close()
+    env.close()

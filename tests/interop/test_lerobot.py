@@ -138,7 +138,7 @@ def validate_v30(root: Path) -> dict:
         task_index = set(rows.column("task_index").to_pylist())
         assert len(task_index) == 1
         assert episodes.column("tasks")[i].as_py() == [task_of[task_index.pop()]]
-        assert episodes.column(f"stats/action/count")[i].as_py() == [lengths[i]]
+        assert episodes.column("stats/action/count")[i].as_py() == [lengths[i]]
     validate_videos(root, info, episodes)
 
     # stats.json: every feature, every stat, the dataset's count, ordered quantiles, exact moments

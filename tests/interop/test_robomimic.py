@@ -4,6 +4,8 @@ foreign files, bad input."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 from pathlib import Path
 
 import h5py
@@ -177,20 +179,127 @@ def test_existing_out_is_never_clobbered(sample: Path, tmp_path: Path) -> None:
     assert text.read_text() == "keep me"
 
 
-def test_export_of_many_episodes_reads_back(tmp_path: Path) -> None:
-    """From about 200 episodes libhdf5 reads the staged file back while writing it: a write-only staging
-    file failed the export then (UnsupportedOperation)."""
-    store, out = tmp_path / "ref.zarr", tmp_path / "ref_rm.hdf5"
-    assert main(["collect", "--task", "reach", "--episodes", "240", "--seed", "0", "--out", str(store)]) == 0
+# From about 200 episodes libhdf5 reads the staged file back while writing it: a write-only staging file failed
+# the export then (UnsupportedOperation); 240 reach episodes was the smallest store seen to fail.
+MANY = 240
+
+
+@pytest.fixture(scope="module")
+def many(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """MANY reach episodes with a mask (every 10th episode), exported by `demo export`: (store, file)."""
+    root = tmp_path_factory.mktemp("many")
+    store, out = root / "reach.zarr", root / "reach.hdf5"
+    assert main(["collect", "--task", "reach", "--episodes", str(MANY), "--seed", "0", "--out", str(store)]) == 0
+    with EpisodeStore.open(store, "a") as s:
+        s.set_mask("valid", np.arange(MANY) % 10 == 0)
     assert main(["export", str(store), "--format", "robomimic", "--out", str(out)]) == 0
+    return store, out
+
+
+def test_export_of_many_episodes_reads_back(many: tuple[Path, Path]) -> None:
+    """What robomimic's readers take from the file (data/demo_N, total, env_args, num_samples, the filter
+    keys), checked with h5py alone."""
+    store, out = many
     source = EpisodeStore.open(store)
+    lengths = source.episode_lengths
     with h5py.File(out, "r") as f:
         data = f["data"]
-        assert len(data) == 240 and "mask" in f
-        assert data.attrs["total"] == source.num_frames
-        np.testing.assert_array_equal(data["demo_239/actions"][()], source.read_episode(239)["action"])
-    try:
-        import robomimic.utils.file_utils as file_utils
-    except ImportError:  # robomimic is optional: h5py's reading above is the check then
-        return
-    assert file_utils.get_env_metadata_from_dataset(str(out))["env_name"] == "reach"
+        assert sorted(data, key=lambda k: int(k[5:])) == [f"demo_{i}" for i in range(MANY)]
+        assert data.attrs["total"] == source.num_frames == lengths.sum()
+        env_args = json.loads(data.attrs["env_args"])
+        assert env_args["env_name"] == "reach" and env_args["env_kwargs"]["control_freq"] == 20.0
+        assert [int(data[f"demo_{i}"].attrs["num_samples"]) for i in range(MANY)] == lengths.tolist()
+        for i in range(MANY):
+            g = data[f"demo_{i}"]
+            assert {len(g[k]) for k in ("actions", "rewards", "dones", "states")} == {lengths[i]}
+            for prefix in ("obs", "next_obs"):
+                assert {len(g[prefix][k]) for k in g[prefix]} == {lengths[i]}
+        for i in (0, 199, 200, MANY - 1):
+            ep = source.read_episode(i)
+            np.testing.assert_array_equal(data[f"demo_{i}/actions"][()], ep["action"])
+            np.testing.assert_array_equal(data[f"demo_{i}/obs/joint_pos"][()], ep["obs.joint_pos"])
+        assert list(f["mask"]) == ["valid"]
+        assert f["mask/valid"][()].tolist() == [f"demo_{i}".encode() for i in range(0, MANY, 10)]
+
+
+# A Python with robomimic installed, for the cross-check below. Never this project's environment (robomimic
+# needs torch). robomimic 0.3.0's dataset reader needs only torch, h5py, tqdm and termcolor of its
+# dependencies (PyPI's torchvision does not import beside the CPU torch): python3 -m venv /tmp/rmvenv &&
+# /tmp/rmvenv/bin/pip install --no-deps robomimic==0.3.0 && /tmp/rmvenv/bin/pip install torch==2.13.0 h5py
+# tqdm termcolor, then DEMO_ROBOMIMIC_PYTHON=/tmp/rmvenv/bin/python (docs/interop.md).
+ROBOMIMIC_PYTHON = os.environ.get("DEMO_ROBOMIMIC_PYTHON")
+ROBOMIMIC_READ = """
+import sys, time, h5py, numpy as np, torch
+import robomimic.utils.obs_utils as ObsUtils
+from robomimic.utils.dataset import SequenceDataset
+path, out = sys.argv[1], sys.argv[2]
+with h5py.File(path, "r") as f:
+    low_dim = sorted(k for k in f["data/demo_0/obs"] if f["data/demo_0/obs"][k].ndim == 2)
+    masks = list(f["mask"])
+ObsUtils.initialize_obs_utils_with_obs_specs({"obs": {"low_dim": low_dim}})
+def dataset(filter_key):
+    return SequenceDataset(hdf5_path=path, obs_keys=low_dim, dataset_keys=("actions", "rewards", "dones"),
+                           seq_length=10, frame_stack=1, pad_seq_length=True, hdf5_cache_mode="low_dim",
+                           filter_by_attribute=filter_key)
+start = time.perf_counter()
+ds = dataset(None)
+load = time.perf_counter() - start
+items = [ds[i] for i in range(len(ds))]
+arrays = {"length": len(ds), "demos": ds.n_demos, "load_s": load}
+for key in ("actions", "rewards", "dones"):
+    arrays[key] = np.stack([it[key] for it in items])
+for prefix in ("obs", "next_obs"):
+    for key in low_dim:
+        arrays[prefix + "/" + key] = np.stack([it[prefix][key] for it in items])
+batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=64, shuffle=True)))  # as robomimic's training loop
+arrays["batch"] = np.array([*batch["actions"].shape, *batch["obs"]["joint_pos"].shape])
+for name in masks:
+    subset = dataset(name)
+    arrays["mask/" + name] = np.array([subset.n_demos, len(subset)])
+np.savez(out, **arrays)
+print(f"SequenceDataset: {len(ds)} sequences of {ds.n_demos} demos, loaded in {load:.2f} s")
+"""
+
+
+def robomimic_sequences(store: EpisodeStore, seq_length: int) -> dict[str, np.ndarray]:
+    """What robomimic's SequenceDataset(seq_length, frame_stack=1, pad_seq_length=True, hdf5_cache_mode="low_dim")
+    returns for every index of an export of the whole store: one sequence per frame, the episode's last frame
+    repeated past its end; next_obs is obs one frame later (the last frame repeated); actions, rewards and
+    dones as float32."""
+    lengths = store.episode_lengths
+    episodes = [store.read_episode(i) for i in range(store.num_episodes)]
+    last = np.cumsum(lengths) - 1
+    ends = np.repeat(last, lengths)[:, None]
+    index = np.minimum(np.arange(len(ends))[:, None] + np.arange(seq_length), ends)
+    following = np.minimum(index + 1, ends)
+    done = np.zeros(len(ends), np.int64)
+    done[last] = 1
+    rewards = done * np.repeat(np.asarray(store.column("success"), np.float64), lengths)
+    sequences = {"actions": np.concatenate([ep["action"] for ep in episodes])[index], "rewards": rewards[index],
+                 "dones": done[index]}
+    sequences = {k: v.astype(np.float32) for k, v in sequences.items()}  # hdf5_cache_mode="low_dim" casts these
+    for key, spec in store.meta.features.items():
+        if key.startswith("obs.") and len(spec.shape) == 1:
+            frames = np.concatenate([ep[key] for ep in episodes])
+            sequences["obs/" + key[4:]], sequences["next_obs/" + key[4:]] = frames[index], frames[following]
+    return sequences
+
+
+@pytest.mark.skipif(not ROBOMIMIC_PYTHON, reason="robomimic is not installed: set DEMO_ROBOMIMIC_PYTHON to a Python "
+                    "that has robomimic 0.3.0 to read the export with its SequenceDataset (docs/interop.md)")
+def test_robomimic_sequence_dataset_reads_the_export(many: tuple[Path, Path], tmp_path: Path) -> None:
+    store, out = many
+    subprocess.run([ROBOMIMIC_PYTHON, "-c", ROBOMIMIC_READ, str(out), str(tmp_path / "items.npz")], check=True,
+                   timeout=600)
+    read = np.load(tmp_path / "items.npz")
+    source = EpisodeStore.open(store)
+    assert int(read["length"]) == source.num_frames and int(read["demos"]) == MANY
+    assert read["batch"].tolist() == [64, 10, source.meta.features["action"].shape[0], 64, 10, 7]
+    valid = source.episode_lengths[::10]
+    assert read["mask/valid"].tolist() == [len(valid), int(valid.sum())]
+    expected = robomimic_sequences(source, seq_length=10)
+    obs_keys = sorted(k for k in read.files if k.startswith(("obs/", "next_obs/")))
+    assert obs_keys == sorted(k for k in expected if "/" in k)
+    for key, values in expected.items():
+        assert read[key].dtype == values.dtype and read[key].shape == values.shape, key
+        np.testing.assert_array_equal(read[key], values, err_msg=key)

@@ -4,12 +4,14 @@ checksums), a changed byte by every command that reads whole episodes."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 from demo.cli.main import main
 from demo.store import EpisodeStore
+from demo.verify import NO_VERIFY_ENV
 
 
 @pytest.fixture(scope="module")
@@ -54,3 +56,14 @@ def test_a_flipped_byte_is_refused_by_whole_episode_readers(tmp_path: Path, one_
         one_line_error(argv, "episode 3: its data does not match its checksum")
     one_line_error(["info", str(path), "--check"], "1 damaged episode(s); first: episode 3")
     assert not (tmp_path / "e.zarr").exists() and not (tmp_path / "l").exists()
+
+
+def test_no_verify_reads_damage_for_a_user_who_knows(damaged: Path, tmp_path: Path, one_line_error) -> None:
+    """``demo --no-verify``: the missing chunk reads as zeros and a changed byte as it is, for that command
+    alone; ``info --check`` still checks."""
+    assert main(["--no-verify", "curate", str(damaged), "--out", str(tmp_path / "c.zarr")]) == 0
+    assert NO_VERIFY_ENV not in os.environ  # one command's setting, not the process's
+    with EpisodeStore.open(tmp_path / "c.zarr") as curated:
+        assert curated.num_episodes > 0
+    one_line_error(["curate", str(damaged), "--out", str(tmp_path / "c2.zarr")], "is missing")  # checks again
+    one_line_error(["--no-verify", "info", str(damaged), "--check"], "damaged episode")
