@@ -48,7 +48,8 @@ def config_options(config: type, show_default: Callable[[str], str | None] = lam
     for f in option_fields(config):
         kind = _option_type(hints[f.name])
         flag = flag_of(f)
-        declared = f"{flag}/--no-{flag[2:]}" if kind is bool and f.default is None else flag
+        # A flag that is on (or unset) by default can be turned off: --flag/--no-flag.
+        declared = f"{flag}/--no-{flag[2:]}" if kind is bool and f.default in (None, True) else flag
         shown: Any = True
         if f.default is None:
             shown = show_default(f.name) or f.metadata.get("unset") or False

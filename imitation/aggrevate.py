@@ -121,6 +121,7 @@ class AggreVaTe(Family):
 
     name: str = "aggrevate"
     OPTIONS: ClassVar[tuple[str, ...]] = ("states", "candidates", "sigma", "failure_cost")
+    CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
     states: int = 10
     candidates: int = 3
     sigma: float = 0.05

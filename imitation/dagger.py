@@ -9,8 +9,9 @@ members' hooks in :class:`Family`, their configuration in :mod:`demo.imitation.c
    ``--algo bc`` would (the shared :class:`demo.training.trainer.TrainingRun`).
 1. Round ``r = 1..R`` rolls out ``K`` episodes (seeds: :mod:`demo.seeds`) of the mixture
    policy: at every step the expert is asked for its action on the visited state (the task experts
-   are state-feedback policies, so any state can be labelled), and the executed action is the
-   expert's with probability ``beta_r``, else the learner's. ``--beta``:
+   are state-feedback policies, so any state can be labelled; a chunked learner's labels are chunks,
+   below), and the executed action is the expert's with probability ``beta_r``, else the learner's.
+   ``--beta``:
 
    - ``indicator``: ``beta_r = 0`` (round 0 already was the expert's data; Ross et al.'s choice);
    - ``linear:N``: ``beta_r = max(0, 1 - r / N)``;
@@ -52,7 +53,17 @@ The family: SafeDAgger (:mod:`demo.imitation.safedagger`), AggreVaTe (:mod:`demo
 their own rounds: a :class:`Family` says what round ``r`` rolls out (an episode function, run here or on
 the workers) and what its metrics add (:func:`make_family`; ``demo train --algo NAME``).
 
-The learner is BC's policy, single-step unless told otherwise (:data:`demo.training.config.DAGGER_DEFAULTS`).
+The learner is BC's policy with BC's defaults: 16-step chunks executed with temporal ensembling. A
+chunked learner is trained on *chunk labels* (:class:`ChunkLabels`, ``chunk_labels``; on for DAgger,
+off under a gate): at a labelled state the expert's own next ``chunk`` actions, looked ahead in the
+simulator from that state and executing its own actions (:func:`expert_chunk`), at most one every
+``label_stride`` steps (default: the chunk) and each of its actions counted as a label, so a
+rollout step costs one label as before. The single-step labels at the states a learner visits next
+are answers in states the expert would not have reached, and a window of them is not the plan a
+chunked learner is trained to predict (pick from 10 demos, 5 rounds x 10 rollouts: 5/100 with such
+windows, 46/100 with chunk labels). Under HG-DAgger's gate the labels are the expert's own
+consecutive actions while it is in control, which already are its plan: dense single-step labels
+there (96/100 at 2,322 labels; chunk labels every 16 steps: 87/100).
 Everything else of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
 :class:`demo.training.trainer.TrainingRun`'s; this file holds only what is DAgger's own.
 """
@@ -61,6 +72,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, closing
+import copy
 import dataclasses
 from dataclasses import dataclass
 import importlib
@@ -84,7 +96,7 @@ from demo.sim.robot_record import resolve_robot
 from demo.sim.rollout import StepCommand, rollout
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.location import absolute, store_path
-from demo.training.data import LABEL_KEY, TrainingData, prepare
+from demo.training.data import CHUNK_KEY, HAS_CHUNK_KEY, LABEL_KEY, TrainingData, prepare
 from demo.training.optim import Learner
 from demo.training.trainer import TrainingRun
 
@@ -94,11 +106,18 @@ INTERVENTION_KEY = "info.intervention"  # per frame: 1 where the expert, not the
 
 
 # ================================================================================== the aggregate store
-def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
-    """A copy of ``source`` with the per-frame ``info.labelled`` flag (all True for its episodes)."""
+def create_aggregate(source: EpisodeStore, path: Path, chunk: int = 1) -> EpisodeStore:
+    """A copy of ``source`` with the per-frame ``info.labelled`` flag (all True for its episodes) and, for a
+    chunked learner (``chunk`` > 1), room for chunk labels (:data:`CHUNK_KEY`; a demonstration's frames
+    have none: the actions it went on to execute are the expert's chunk)."""
     meta = StoreMeta.from_json(source.meta.to_json())
     meta.features[LABEL_KEY] = FeatureSpec((), "uint8", "1 where the action is an expert label", "")
     meta.features[INTERVENTION_KEY] = FeatureSpec((), "uint8", "1 where the expert, not the learner, was in control", "")
+    dim = source.meta.action.dim
+    if chunk > 1:
+        meta.features[CHUNK_KEY] = FeatureSpec((chunk, dim), "float32", "the expert's action chunk from this state "
+                                               "(looked ahead in the simulator) where info.has_label_chunk", "")
+        meta.features[HAS_CHUNK_KEY] = FeatureSpec((), "uint8", "1 where info.label_chunk holds a chunk label", "")
     meta.provenance = [*meta.provenance, {"op": "dagger", "from": str(source.path), "time": ckpt.now()}]
     out = EpisodeStore.create(path, meta, overwrite=True, robot_from=source.path)
     skip = {"episode_index", "start", "length", "duration_s", "crc32"}
@@ -109,7 +128,11 @@ def create_aggregate(source: EpisodeStore, path: Path) -> EpisodeStore:
             info["dagger_round"] = 0
             info["labels"] = len(data["action"])
             ones = np.ones(len(data["action"]), np.uint8)  # a demonstration: expert labels, the expert in control
-            batch.append(({**data, LABEL_KEY: ones, INTERVENTION_KEY: ones}, info))
+            flags = {LABEL_KEY: ones, INTERVENTION_KEY: ones}
+            if chunk > 1:
+                flags[CHUNK_KEY] = np.zeros((len(ones), chunk, dim), np.float32)
+                flags[HAS_CHUNK_KEY] = np.zeros(len(ones), np.uint8)
+            batch.append(({**data, **flags}, info))
         out.append_episodes(batch)
     except BaseException:
         out.abandon()  # no half-made aggregate (nor its staging folder) stays behind
@@ -178,11 +201,46 @@ class DeviationGate:
         return self.in_control
 
 
+@dataclass(frozen=True)
+class ChunkLabels:
+    """DAgger's labels for a chunked learner. A single action is the expert's answer in one state, and
+    the actions at the states a learner visits next are answers in states the expert would not have
+    reached, not a plan: a window of them is not what a chunked learner is trained to predict. So a
+    labelled state gets the expert's own chunk from there (:func:`expert_chunk`): ``horizon`` actions,
+    each counted as a label, at most one such label every ``stride`` steps of a rollout (``stride`` =
+    ``horizon`` spends as many labels per rollout step as single-step labels on every step)."""
+
+    horizon: int
+    stride: int
+
+
+def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.ndarray:
+    """``[horizon, A]`` (float32): ``first``, the expert's action in ``env``'s current state, then the
+    actions a copy of the expert takes in the states its own actions lead to, looked ahead in ``env``
+    without observing (:meth:`demo.sim.env.Env.advance`). ``env``'s state is restored after, so the
+    rollout goes on exactly as it would have (MuJoCo's integration state holds everything a step reads)."""
+    out = np.empty((horizon, len(first)), np.float32)
+    out[0] = first
+    if horizon > 1:
+        state = env.get_state()
+        ahead = copy.deepcopy(expert)  # the rollout's expert keeps its own state (its rng, its last target)
+        try:
+            env.advance(first)
+            for k in range(1, horizon):
+                out[k] = ahead.act(env)
+                if k + 1 < horizon:
+                    env.advance(out[k])
+        finally:
+            env.set_state(state)
+    return out
+
+
 def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | Gate | None,
-                   n_arm: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+                   n_arm: int, chunks: ChunkLabels | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """One rollout of the mixture policy (``beta``), or of the learner under ``gate`` (a threshold:
     HG-DAgger's :class:`DeviationGate`; or any :data:`Gate`, e.g. SafeDAgger's classifier), every
-    visited state labelled by the expert; under a gate only the frames the expert took are labels."""
+    visited state labelled by the expert; under a gate only the frames the expert took are labels.
+    ``chunks``: labels are the expert's chunks, at most one every ``chunks.stride`` steps (:class:`ChunkLabels`)."""
     env.reset(seed)
     actor.reset(seed, env)
     expert = env.expert(rng=np.random.default_rng([seed, 2]))
@@ -190,41 +248,56 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | G
     decide = DeviationGate(gate, n_arm) if isinstance(gate, (int, float)) else gate
     labelled: list[bool] = []
     in_control: list[bool] = []
+    chunk_labels: list[np.ndarray] = []
+    since_chunk = [chunks.stride if chunks else 0]  # steps since the last chunk label
 
     def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
         label = np.asarray(expert.act(env), dtype=np.float32)
         mine = np.asarray(actor.act(frame), dtype=np.float32)
         if decide is not None:
             use_expert = bool(decide(frame, mine, label))
-            labelled.append(use_expert)
+            is_label = use_expert
         else:
             use_expert = bool(mix.random() < beta) if beta > 0 else False
-            labelled.append(True)
+            is_label = True
+        if chunks is not None:
+            is_label = is_label and since_chunk[0] >= chunks.stride
+            since_chunk[0] = 1 if is_label else since_chunk[0] + 1
+            chunk_labels.append(expert_chunk(env, expert, label, chunks.horizon) if is_label
+                                else np.full((chunks.horizon, len(label)), np.nan, np.float32))
+        labelled.append(is_label)
         in_control.append(use_expert)
         executed = label if use_expert else mine
         return StepCommand(executed=executed, label=label, ee_target=np.asarray(expert.ee_target, np.float32))
 
     episode = rollout(env, seed, act, reset=False)
-    return episode_record(episode, seed, labelled, in_control, beta)
+    return episode_record(episode, seed, labelled, in_control, beta, chunks=np.stack(chunk_labels) if chunks else None)
 
 
 def episode_record(episode: Any, seed: int, labelled: Sequence[bool], in_control: Sequence[bool], beta: float,
-                   source: str = "dagger") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+                   source: str = "dagger", chunks: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """A family rollout (a recorded :class:`demo.sim.rollout.Episode`) as the aggregate stores it: its
-    frames with the per-frame flags ``info.labelled`` and ``info.intervention``, and its table row
-    (``labels``; ``expert_steps``, the frames the expert was in control of; ``takeovers``, how often
-    it took over from the learner)."""
+    frames with the per-frame flags ``info.labelled`` and ``info.intervention`` (and ``chunks``, ``[T, H, A]``
+    chunk labels, NaN on frames without, as :data:`CHUNK_KEY` and :data:`HAS_CHUNK_KEY`), and its table row (``labels``, every labelled
+    action: a chunk label counts its length; ``expert_steps``, the frames the expert was in control of;
+    ``takeovers``, how often it took over from the learner)."""
     data = dict(episode.data)
     data[LABEL_KEY] = np.asarray(labelled, dtype=np.uint8)
     flags = np.asarray(in_control, dtype=np.uint8)
     data[INTERVENTION_KEY] = flags
+    labels = int(np.sum(data[LABEL_KEY]))
+    if chunks is not None:
+        has = np.isfinite(chunks[:, 0, 0])
+        data[CHUNK_KEY] = np.where(has[:, None, None], chunks, 0.0).astype(np.float32)
+        data[HAS_CHUNK_KEY] = has.astype(np.uint8)
+        labels *= chunks.shape[1]
     info = {
         "success": episode.success,
         "seed": seed,
         "source": source,
         "operator": "expert",
         "first_success_step": -1 if episode.first_success_step is None else episode.first_success_step,
-        "labels": int(np.sum(data[LABEL_KEY])),
+        "labels": labels,
         "expert_steps": int(flags.sum()),
         "takeovers": int((np.diff(np.r_[0, flags.astype(np.int64)]) == 1).sum()),
         "beta": float(beta),
@@ -243,9 +316,10 @@ class MixtureEpisodes:
     beta: float
     gate: Any  # float | Gate | None
     n_arm: int
+    chunks: ChunkLabels | None = None
 
     def __call__(self, env: Any, actor: Any, seed: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        return dagger_episode(env, actor, seed, self.beta, self.gate, self.n_arm)
+        return dagger_episode(env, actor, seed, self.beta, self.gate, self.n_arm, self.chunks)
 
 
 @dataclass
@@ -255,13 +329,15 @@ class Family:
     :meth:`episodes` and may add per-round metrics (:meth:`round_entry`) and recorded settings."""
 
     name: str = "dagger"
+    chunk_labels: ChunkLabels | None = None  # set by train_dagger for a chunked learner (CHUNK_LABELS members)
     OPTIONS: ClassVar[tuple[str, ...]] = ()  # the fields ``--algo-opt KEY=VALUE`` may set
+    CHUNK_LABELS: ClassVar[bool] = True  # whether its rollouts label states with expert chunks (ChunkLabels)
 
     def episodes(self, run: TrainingRun, store: EpisodeStore, env: Any, r: int, beta: float,
                  gate: float | None) -> EpisodeFn:
         """Round ``r``'s episode function, made when the attached learner is the one that rolls out
         (trained on the data through round ``r - 1``, ``run.data``)."""
-        return MixtureEpisodes(beta, gate, len(env.robot.arm_joints))
+        return MixtureEpisodes(beta, gate, len(env.robot.arm_joints), self.chunk_labels)
 
     def round_entry(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
         """What the member adds to round ``r``'s metrics, from its episodes' table rows."""
@@ -393,13 +469,17 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
             env = stack.enter_context(closing(make_env_for_store(origin, *env_args)))
             run.open_directory()
             if not resume:
-                store = create_aggregate(origin, agg_path)
+                store = create_aggregate(origin, agg_path, chunk=tc.chunk if config.uses_chunk_labels() and
+                                         family.CHUNK_LABELS else 1)
         if resume:
             store = EpisodeStore.open(agg_path, "a")
         stack.enter_context(store)
+        if CHUNK_KEY in store.meta.features:  # the aggregate says (a resumed run's was made by its first start)
+            horizon = store.meta.features[CHUNK_KEY].shape[0]
+            family = dataclasses.replace(family, chunk_labels=ChunkLabels(horizon, config.label_stride or horizon))
         stack.enter_context(run)
         stack.enter_context(session(executor))  # one Ray (when used) for every round
-        features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY)}
+        features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY, CHUNK_KEY, HAS_CHUNK_KEY)}
         flagged = INTERVENTION_KEY in store.meta.features  # False in an aggregate made before the flag
         recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
         if features != recorded:

@@ -72,6 +72,7 @@ class Dart(Family):
 
     name: str = "dart"
     OPTIONS: ClassVar[tuple[str, ...]] = ("alpha",)
+    CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
     alpha: float | None = None
     last: dict[str, Any] = field(default_factory=dict)
 

@@ -116,6 +116,7 @@ class Perturb(Family):
 
     name: str = "perturb"
     OPTIONS: ClassVar[tuple[str, ...]] = ("sigma", "tries")
+    CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
     sigma: float = 0.05
     tries: int = 5
 

@@ -124,6 +124,7 @@ class SafeDagger(Family):
 
     name: str = "safedagger"
     OPTIONS: ClassVar[tuple[str, ...]] = ("hidden", "steps")
+    CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
     hidden: tuple[int, ...] = (64, 64)
     steps: int = 1000
     last: dict[str, Any] = field(default_factory=dict)  # the latest classifier's fit, for the round's entry

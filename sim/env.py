@@ -199,6 +199,15 @@ class Env:
         mujoco.mj_forward(m, d)
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        self.advance(action)
+        obs = self.observe()
+        ok = self.task.success(self)
+        truncated = self.steps >= self.horizon
+        return obs, float(ok), ok, truncated, {"success": ok}
+
+    def advance(self, action: np.ndarray) -> None:
+        """One control step of ``action`` (``joint_pos``: arm joint targets, rad, + gripper closedness),
+        physics only: :meth:`step` without observing (no camera renders), for looking ahead."""
         a = np.asarray(action)  # float32 or float64: the ufuncs below compute in float64 either way
         if a.shape != self._action_shape:
             raise DemoError("action", f"expected shape ({self.action_spec.dim},), got {a.shape}")
@@ -211,10 +220,6 @@ class Env:
         clip(ctrl, self._ctrl_lo, self._ctrl_hi, out=ctrl)
         mujoco.mj_step(self.model, d, nstep=self.n_substeps)
         self.task.after_step(self)
-        obs = self.observe()
-        ok = self.task.success(self)
-        truncated = self.steps >= self.horizon
-        return obs, float(ok), ok, truncated, {"success": ok}
 
     @property
     def steps(self) -> int:

@@ -15,7 +15,11 @@
    bytes in memory and become floats in the policy's encoder (:mod:`demo.policies.visuomotor`).
 
 Frames may carry a per-frame expert-label flag (:data:`LABEL_KEY`, written by DAgger): windows then
-start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss).
+start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss). A
+frame may also carry a chunk label (:data:`CHUNK_KEY`, DAgger's labels for a chunked learner: the
+actions the expert would execute from that state on, looked ahead in the simulator; flagged by
+:data:`HAS_CHUNK_KEY`): a window queried there takes it as its action chunk instead of the actions the
+episode went on to execute.
 
 :func:`prepare_union` trains on several stores as one (e.g. the same task on two arms, both in
 ``ee7``): frames concatenated store after store (episode ends offset), each store split with the
@@ -41,6 +45,8 @@ from demo.policies.policy import PolicySpec
 from demo.policies.relative import RelativeActions, default_relative
 
 LABEL_KEY = "info.labelled"  # optional per-frame flag: this frame's action is an expert label
+CHUNK_KEY = "info.label_chunk"  # optional per-frame [H, A]: the expert's chunk from this state, where ...
+HAS_CHUNK_KEY = "info.has_label_chunk"  # ... this per-frame flag is 1 (zeros elsewhere)
 VALIDATION_WINDOWS = 4096  # windows of the fixed validation batch
 VALIDATION_WINDOWS_IMAGES = 512  # with cameras: a validation pass stays a few seconds of encoder time
 MIN_TRAIN_EPISODES = 2  # below this a policy sees one trajectory: refused, not trained silently
@@ -101,6 +107,7 @@ class TrainingData:
     spec: PolicySpec  # obs_dim, action_dim, n_obs, horizon (= chunk), cameras
     images: dict[str, np.ndarray] = field(default_factory=dict)  # camera key -> [N, H, W, 3] uint8; none = state only
     sources: tuple[Source, ...] = ()  # the stores, in concatenation order (one unless a union)
+    chunks: np.ndarray | None = None  # [N, H, A] raw chunk labels (CHUNK_KEY), all NaN on a frame without one
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -121,7 +128,7 @@ class TrainingData:
         raw = _load_arrays(store, self.obs_spec, self.relative)
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
                        ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
-                       sources=(Source(str(store.path), 0, len(raw[3])),))
+                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6])
 
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
@@ -210,6 +217,10 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     if any(p[4] is not None for p in parts):  # a store without label flags is labelled throughout
         labelled = _join([p[4] if p[4] is not None else np.ones(len(p[1]), bool) for p in parts])
     images = {k: _join([p[5][k] for p in parts]) for k in obs_spec.images}
+    chunks = None
+    if any(p[6] is not None for p in parts):  # a store without chunk labels has none on any frame
+        horizon = max(p[6].shape[1] for p in parts if p[6] is not None)
+        chunks = _join([_chunk_rows(p[6], len(p[1]), horizon, p[1].shape[1]) for p in parts])
     train_eps = _join([s[0] + first_episode[i] for i, s in enumerate(splits)])
     val_eps = _join([s[1] + first_episode[i] for i, s in enumerate(splits)])
     sources = tuple(Source(str(s.path), int(first_episode[i]), len(p[3])) for i, (s, p) in enumerate(zip(stores, parts)))
@@ -226,7 +237,7 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
     spec = PolicySpec(obs_spec.dim, stores[0].meta.action.dim, config.n_obs, config.chunk, cameras)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
-                        obs_norm, _UNIT, relative, spec, images, sources)
+                        obs_norm, _UNIT, relative, spec, images, sources, chunks)
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
 
@@ -265,9 +276,19 @@ def frame_indices(ends: np.ndarray, episodes: np.ndarray) -> np.ndarray:
     return np.concatenate([np.arange(starts[i], ends[i]) for i in episodes]) if len(episodes) else np.zeros(0, np.int64)
 
 
+def _chunk_rows(chunks: np.ndarray | None, n: int, horizon: int, dim: int) -> np.ndarray:
+    """``[n, horizon, A]`` chunk labels: ``chunks`` padded with NaN steps to ``horizon``, or all NaN."""
+    out = np.full((n, horizon, dim), np.nan, np.float32)
+    if chunks is not None:
+        out[:, : chunks.shape[1]] = chunks
+    return out
+
+
 def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None):
-    """Concatenated observations, actions, relative-action bases, episode ends, label flags, images."""
-    keys = [*obs_spec.source_keys, *obs_spec.images, "action"] + ([LABEL_KEY] if LABEL_KEY in store.meta.features else [])
+    """Concatenated observations, actions, relative-action bases, episode ends, label flags, images,
+    chunk labels."""
+    flags = [k for k in (LABEL_KEY, CHUNK_KEY, HAS_CHUNK_KEY) if k in store.meta.features]
+    keys = [*obs_spec.source_keys, *obs_spec.images, "action", *flags]
     if relative is not None and relative.obs_key not in keys:
         keys.append(relative.obs_key)
     arrays, ends = store.load(keys)
@@ -275,7 +296,11 @@ def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActio
     action = np.asarray(arrays["action"], dtype=np.float32)
     base = relative.base(arrays, action.shape[1]) if relative is not None else None
     images = {k: np.ascontiguousarray(arrays[k], dtype=np.uint8) for k in obs_spec.images}
-    return obs_spec.concat(arrays), action, base, ends, labelled, images
+    chunks = None
+    if CHUNK_KEY in arrays and HAS_CHUNK_KEY in arrays:  # NaN marks a frame without one from here on
+        chunks = np.asarray(arrays[CHUNK_KEY], dtype=np.float32).copy()
+        chunks[arrays[HAS_CHUNK_KEY].reshape(-1) == 0] = np.nan
+    return obs_spec.concat(arrays), action, base, ends, labelled, images, chunks
 
 
 def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:
@@ -321,14 +346,25 @@ class Windows:
         self.partial = partial
         self.base = data.base
         self.norm = data.action_norm if normalize else None
+        self.chunks = data.chunks
+        self.has_chunk = None if data.chunks is None else np.isfinite(data.chunks[:, 0, 0])
 
     def __len__(self) -> int:
         return len(self.sampler)
 
     def _targets(self, t: np.ndarray, action: np.ndarray, pad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The sampler's action windows at ``t`` as targets: label flags split off, relative if so."""
+        """The sampler's action windows at ``t`` as targets: label flags split off, chunk labels in place of
+        the executed actions where a query frame has one, relative if so."""
         if self.partial:
             action, pad = action[..., :-1], pad | (action[..., -1] < 0.5)
+        if self.has_chunk is not None and self.has_chunk[t].any():
+            rows = np.flatnonzero(self.has_chunk[t])
+            labels = self.chunks[t[rows], : action.shape[1]]  # [R, <= H, A]; NaN steps past the label's own
+            steps = labels.shape[1]
+            action, pad = np.array(action), np.array(pad)
+            action[rows, :steps] = np.nan_to_num(labels)
+            pad[rows] = True
+            pad[rows, :steps] = ~np.isfinite(labels[..., 0])
         if self.base is not None:
             action = action - self.base[t][:, None, :]
         return action, pad

@@ -28,7 +28,8 @@ def demos(reach_demos) -> Path:
 def dagger(demos: Path, out: Path, **kw) -> dict:
     tc = TrainConfig(data=str(demos), out=str(out), steps=150, batch_size=64, chunk=2, policy={"hidden": (64, 64)},
                      val_fraction=0.25, log_every=50, val_every=50)
-    config = DaggerConfig(train=tc, rounds=2, episodes_per_round=2, round_steps=60, **kw)
+    # Single-step labels (each visited state's action) unless a test asks for chunk labels.
+    config = DaggerConfig(train=tc, rounds=2, episodes_per_round=2, round_steps=60, **{"chunk_labels": False, **kw})
     return train_dagger(config)
 
 
@@ -165,3 +166,64 @@ def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) 
     assert [r["round"] for r in summary["rounds"]] == [0, 1, 2] and summary["step"] == 60 + 2 * 20
     with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
         assert store.column("dagger_round").tolist() == [0] * 8 + [1, 2]
+
+
+def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None:
+    """A chunked learner's labels (ChunkLabels): the chunk at a visited state is what the expert executes from
+    there (at the reset state: the start of the expert's own episode), one every ``stride`` steps, each of its
+    actions counted; looking ahead leaves the rollout exactly as it was."""
+    from demo.imitation.dagger import ChunkLabels, dagger_episode
+    from demo.sim.rollout import run_expert
+    from demo.training.data import CHUNK_KEY, HAS_CHUNK_KEY
+
+    env = make_env("pick")
+
+    class Sluggish:  # half the expert's motion: a learner that lags, so the states leave the expert's path
+        def reset(self, seed: int, env_: object) -> None:
+            self.expert = env.expert()
+
+        def act(self, frame: dict) -> np.ndarray:
+            a = np.asarray(self.expert.act(env), dtype=np.float32).copy()
+            a[:-1] = 0.5 * (a[:-1] + frame["obs.joint_pos"])
+            return a
+
+    n_arm = len(env.robot.arm_joints)
+    plain, _ = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, n_arm=n_arm)
+    data, info = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, n_arm=n_arm, chunks=ChunkLabels(8, 4))
+    for key in set(plain) - {LABEL_KEY}:  # the same rollout, bit for bit; the labels are the difference
+        np.testing.assert_array_equal(plain[key], data[key], err_msg=key)
+    has = data[HAS_CHUNK_KEY].astype(bool)
+    assert np.array_equal(np.flatnonzero(has), np.arange(0, len(has), 4)) and np.array_equal(has, data[LABEL_KEY] == 1)
+    assert info["labels"] == 8 * int(has.sum())
+    chunks = data[CHUNK_KEY]
+    np.testing.assert_array_equal(chunks[has, 0], data["action"][has])  # its first action is the step's label
+    expert = run_expert(env, 7, rng=np.random.default_rng([7, 2]), record=True)
+    np.testing.assert_allclose(chunks[0], expert.data["action"][:8], atol=1e-6)
+    assert np.abs(chunks[8] - chunks[4]).max() > 0  # states differ: so do their plans
+
+
+def test_a_chunked_learner_trains_on_chunk_labels(demos: Path, tmp_path: Path) -> None:
+    """End to end: the aggregate holds the chunk labels, the budget counts every labelled action, and the
+    learner's training windows at a labelled rollout state are its chunk label."""
+    from demo.imitation.config import learner_config
+    from demo.training.data import CHUNK_KEY, HAS_CHUNK_KEY
+
+    summary = dagger(demos, tmp_path / "run", chunk_labels=True, label_stride=3)
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
+        rollouts = np.flatnonzero(store.column("dagger_round") >= 1)
+        ep = store.read_episode(int(rollouts[0]))
+        has = ep[HAS_CHUNK_KEY].astype(bool)
+        assert np.array_equal(np.flatnonzero(has), np.arange(0, len(has), 3))
+        assert store.column("labels")[rollouts[0]] == 2 * has.sum()  # chunk 2: two actions a label
+        data = prepare(learner_config(data=str(tmp_path / "run" / "data.zarr"), chunk=2, val_fraction=0.25), store)
+    assert summary["rounds"][-1]["labels_total"] == summary["rounds"][0]["labels_total"] + int(
+        store.column("labels")[rollouts].sum())
+    start = int(store.column("start")[rollouts[0]])
+    t = start + np.flatnonzero(has)[:2]
+    windows = data.windows(np.array([int(rollouts[0])]))
+    _, target, pad = windows.get(t)
+    chunk = data.action_norm.unnormalize(target.numpy())
+    if data.base is not None:  # relative actions: to the query frame's state
+        chunk = chunk + data.base[t][:, None, :]
+    np.testing.assert_allclose(chunk, ep[CHUNK_KEY][has][:2], atol=1e-5)
+    assert not pad.numpy().any()

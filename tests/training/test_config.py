@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from demo.errors import DemoError
-from demo.training.config import DAGGER_DEFAULTS, LOOP_DEFAULTS, POLICY_DEFAULTS, TrainConfig, for_policy
+from demo.training.config import LOOP_DEFAULTS, POLICY_DEFAULTS, TrainConfig, for_policy
 
 
 def test_given_values_win_then_the_policys_then_the_loops() -> None:
@@ -37,9 +37,9 @@ def test_unknown_policies_and_fields_are_refused() -> None:
         for_policy("bc", chunks=4)
 
 
-def test_dagger_learners_are_single_step() -> None:
+def test_dagger_learners_are_bcs_chunked_policy() -> None:
     from demo.imitation.dagger import learner_config
 
-    c = learner_config(steps=5)
-    assert (c.chunk, c.ensemble) == (DAGGER_DEFAULTS["chunk"], DAGGER_DEFAULTS["ensemble"]) and c.steps == 5
+    c, bc = learner_config(steps=5), for_policy("bc")
+    assert (c.chunk, c.ensemble) == (bc.chunk, bc.ensemble) == (16, True) and c.steps == 5
     assert learner_config(chunk=8).chunk == 8
