@@ -17,6 +17,7 @@ from demo.collect.vr import collect_vr
 from demo.errors import DemoError
 from demo.executor import ExecutorConfig
 from demo.sim.foreign import task_name
+from demo.sim.randomize import Randomization
 from demo.sim.render import parse_camera
 
 SOURCES = ("scripted", "kinesthetic", "vr")
@@ -60,6 +61,10 @@ def collect(
     blocks: int = typer.Option(None, help="stack: number of cubes to stack.", show_default="the task's default"),
     camera: list[str] = typer.Option([], metavar="NAME@WxH", help="Record camera images, e.g. front@128x128 (repeatable).",
                                      show_default="none"),
+    randomize: str = typer.Option(None, "--randomize", metavar="PRESET|KIND=LEVEL,...|FILE", help="scripted: domain "
+                                  "randomisation drawn per episode from its seed: light, medium or heavy (every kind at "
+                                  "level 1, 2, 3), levels per kind (friction=2,camera=1), or a TOML of them; kinds: "
+                                  "lighting, camera, texture, friction, mass, latency.", show_default="none"),
     append: bool = typer.Option(False, "--append", help="Append to an existing store of the same task and robot."),
     min_success: float = typer.Option(
         None, "--min-success", metavar="P", min=0.0, max=1.0,
@@ -76,9 +81,9 @@ def collect(
     if source != "scripted":
         if input is None:
             raise DemoError("--input", f"--source {source} needs an input file (--input)")
-        if workers > 1 or noise > 0 or executor != "process" or address:
-            raise DemoError("--source", f"{source} replays recorded input: --workers > 1, --executor, --address and "
-                                        "--noise do not apply")
+        if workers > 1 or noise > 0 or executor != "process" or address or randomize:
+            raise DemoError("--source", f"{source} replays recorded input: --workers > 1, --executor, --address, "
+                                        "--noise and --randomize do not apply")
         if min_success is not None:
             raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
     if env is not None and source != "scripted":
@@ -91,7 +96,8 @@ def collect(
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
-                                   robot=robot_config, task_options=options, cameras=cameras, expert=expert)
+                                   robot=robot_config, task_options=options, cameras=cameras, expert=expert,
+                                   randomize=Randomization.parse(randomize).to_json() if randomize else {})
             result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
                                       overwrite=overwrite, progress=progress)
         else:

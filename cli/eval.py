@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
@@ -17,6 +18,9 @@ from demo.store import EpisodeStore
 from demo.store.location import store_path
 from demo.cli.output import kv_table, report_console, table, warn, write_json
 from demo.cli.progress import bars
+
+if TYPE_CHECKING:
+    from demo.evaluation.evaluate import EvalConfig
 
 
 @app.command("eval")
@@ -49,6 +53,12 @@ def eval_(
                                "(created if absent; same task, robot and observations) as an episode: source policy, "
                                "columns run, success, outcome; curate it and train on its successes.",
                                show_default="nothing stored"),
+    shift: list[str] = typer.Option(None, "--shift", metavar="KIND", help="Distribution shift suite (repeatable): "
+                                    "lighting, camera, texture, friction, mass, latency, or all; every --level on "
+                                    "the same start states, a robustness table.", show_default="no shift"),
+    level: str = typer.Option("0..3", "--level", metavar="N|A..B", help="--shift: the level(s), 0 (none) to 3."),
+    plot: Path = typer.Option(None, "--plot", metavar="PNG", help="--shift: success against level, one line per "
+                              "shift.", show_default="no figure"),
     json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
@@ -65,6 +75,11 @@ def eval_(
         execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
         record=record,
     )
+    if shift:
+        _shift_suite(config, shift, level, plot, json_out)
+        return
+    if plot is not None:
+        raise DemoError("--plot", "draws the --shift suite's figure: give --shift")
     again = _recorded_before(record, run, seed, episodes) if record is not None else 0  # before this run appends
     with bars() as progress:  # the first tick comes after the first episode, i.e. after validation
         result = evaluate(config, progress=progress)
@@ -95,6 +110,24 @@ def eval_(
             (name.removeprefix("env:"), f"{r['successes']}/{r['episodes']}", f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}",
              ", ".join(f"{k}: {v}" for k, v in sorted(r["failures"].items())) or "none")
             for name, r in result["per_task"].items()]))
+    write_json(result, json_out)
+
+
+def _shift_suite(config: "EvalConfig", shifts: list[str], level: str, plot: Path | None, json_out: str) -> None:
+    """``--shift``: the robustness table (success per shift and level), its JSON and figure."""
+    from demo.evaluation.shifts import evaluate_shifts, parse_levels, parse_shifts, plot_shifts  # deferred: torch
+
+    if config.record is not None or config.video is not None:
+        raise DemoError("--shift", "evaluates many cells: --record and --video take one evaluation")
+    kinds, levels = parse_shifts(shifts), parse_levels(level)
+    with bars() as progress:
+        result = evaluate_shifts(config, kinds, levels, progress=progress)
+    if plot is not None:
+        result["plot"] = str(plot_shifts(result, plot))
+    rows = [(kind, *(f"{c['success_rate']:.0%} ({c['ci95'][0]:.0%}-{c['ci95'][1]:.0%})" for c in cells.values()))
+            for kind, cells in result["shifts"].items()]
+    report_console(json_out).print(table(f"success under shift: {config.run}, {config.episodes} episodes per cell",
+                                         ("shift", *(f"level {lv}" for lv in levels)), rows))
     write_json(result, json_out)
 
 

@@ -21,6 +21,7 @@ The store's ``seed`` column is the reset seed: the two episodes of a pair share 
 
 from __future__ import annotations
 
+import json
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -39,6 +40,7 @@ from demo.seeds import episode_seed
 from demo.sim import load_robot, make_env
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
+from demo.sim.randomize import Randomization
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
@@ -60,12 +62,19 @@ class CollectConfig:
     first_episode: int = 0  # index of the first episode in the seed sequence (to extend a run)
     # A Gymnasium environment's expert (task env:<name>, demo.collect.foreign): module:callable or a named one
     expert: str | None = None
+    # Domain randomisation (demo.sim.randomize): kind -> level, drawn per episode from its seed
+    randomize: dict[str, int] = field(default_factory=dict)
 
 
 def make_env_for(config: CollectConfig) -> Any:
     if is_foreign(config.task):  # it brings its own robot and cameras
+        if config.randomize:
+            raise DemoError("--randomize", "changes demo's own scenes; a Gymnasium environment's are its own")
         return make_env(config.task, **config.task_options)
-    return make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
+    env = make_env(config.task, robot=load_robot(config.robot), cameras=config.cameras, **config.task_options)
+    if config.randomize:
+        env.set_randomization(Randomization(config.randomize))
+    return env
 
 
 BIMODAL_TASKS = ("avoid",)  # tasks whose expert demonstrates one of two modes, demonstrated in pairs
@@ -133,6 +142,8 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     }
     if operator:
         info["operator_failure"] = operator.failure_kind
+    if config.randomize:  # this episode's draws (its seed gives them again: demo.sim.randomize)
+        info["randomization"] = json.dumps(env.randomized, sort_keys=True)
     return episode.data, info
 
 

@@ -56,6 +56,7 @@ from demo.sim import make_env
 from demo.sim.robot_record import resolve_robot, robot_record
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
+from demo.sim.randomize import Randomization
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.output import open_output
 from demo.store.robot_files import same_body
@@ -287,10 +288,12 @@ _worker: dict[str, Any] = {}
 
 
 def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any],
-                 device: str) -> None:
+                 device: str, randomize: dict[str, int] | None = None) -> None:
     torch.set_num_threads(1)
     bundle = load_bundle(run, device)
     env = make_eval_env(bundle, task, options, robot)
+    if randomize:
+        env.set_randomization(Randomization(randomize))
     _worker["env"] = env
     _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
 
@@ -320,6 +323,7 @@ class EvalConfig:
     video_size: int = 128
     device: str = "auto"  # where the policy runs (demo.policies.device); the simulation is always on the CPU
     record: str | None = None  # a store every rollout is appended to (created if absent): the flywheel
+    randomize: dict[str, int] | None = None  # kind -> level (demo.sim.randomize): a distribution shift
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -358,6 +362,11 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         raise DemoError("--video", "replays the simulator's recorded states; a Gymnasium environment's episodes have none")
     execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
+    if config.randomize:
+        if is_foreign(task):
+            env.close()
+            raise DemoError("--shift", "changes demo's own scenes; a Gymnasium environment's are its own")
+        env.set_randomization(Randomization(config.randomize))
     per_task = len(env.tasks) if isinstance(env, ForeignEnvSet) else 1  # --episodes is per task of a set
     seeds = eval_seeds(config.seed, config.episodes * per_task)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
@@ -388,7 +397,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             for outcome in iter_episodes_inline(bundle, env, jobs, execution):
                 done(outcome)
         else:
-            init_args = (str(run), task, options, robot, execution.to_json(), str(device))
+            init_args = (str(run), task, options, robot, execution.to_json(), str(device), config.randomize)
             for ready in ordered_map(_worker_init, init_args, _worker_run, jobs, executor,
                                      label=lambda job: f"evaluation episode {job[0]}"):
                 for outcome in ready:
@@ -417,6 +426,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             "seed_rule": f"episode i starts from episode_seed(seed + {EVAL_OFFSET:_}, i) (demo.seeds)",
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
             "execution": execution.to_json(),
+            **({"randomize": config.randomize} if config.randomize else {}),
             "workers": config.workers,
             "executor": config.executor,
             "device": str(device),

@@ -218,11 +218,12 @@ def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.n
     """``[horizon, A]`` (float32): ``first``, the expert's action in ``env``'s current state, then the
     actions a copy of the expert takes in the states its own actions lead to, looked ahead in ``env``
     without observing (:meth:`demo.sim.env.Env.advance`). ``env``'s state is restored after, so the
-    rollout goes on exactly as it would have (MuJoCo's integration state holds everything a step reads)."""
+    rollout goes on exactly as it would have (:meth:`demo.sim.env.Env.snapshot`: MuJoCo's integration
+    state and any commands a randomised latency holds back)."""
     out = np.empty((horizon, len(first)), np.float32)
     out[0] = first
     if horizon > 1:
-        state = env.get_state()
+        snapshot = env.snapshot()
         ahead = copy.deepcopy(expert)  # the rollout's expert keeps its own state (its rng, its last target)
         try:
             env.advance(first)
@@ -231,7 +232,7 @@ def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.n
                 if k + 1 < horizon:
                     env.advance(out[k])
         finally:
-            env.set_state(state)
+            env.restore(snapshot)
     return out
 
 

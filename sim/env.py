@@ -23,6 +23,7 @@ Conventions:
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -35,6 +36,7 @@ from demo.sim.foreign import ENV_PREFIX, ForeignEnv, is_foreign
 from demo.sim.foreign_set import ForeignEnvSet, set_members
 from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.numeric import clip
+from demo.sim.randomize import Randomization, SceneRandomizer
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
 from demo.sim.robot_model import joint_limits
@@ -75,6 +77,10 @@ class Env:
         self._bind_views()
         self._ik: ArmIK | None = None
         self._obs_cache: tuple | None = None
+        self._randomizer: SceneRandomizer | None = None
+        self.randomized: dict[str, Any] = {}  # this episode's draws (demo.sim.randomize); {} when off
+        self._pending: deque[np.ndarray] | None = None  # commands not yet executed (randomised latency)
+        self._lag_substeps = 0  # ... and the physics substeps a new command waits within a step
         self.cameras.open(self.model)
         task.bind(self)
         self.horizon = int(task.horizon)
@@ -173,10 +179,21 @@ class Env:
         return f
 
     # ------------------------------------------------------------------ episode API
+    def set_randomization(self, randomization: Randomization | None) -> None:
+        """Draw the scene's look and physics per episode from the reset seed (:mod:`demo.sim.randomize`),
+        from the next :meth:`reset` on; None: the nominal scene."""
+        if self._randomizer is not None:
+            self._randomizer.restore()
+        active = randomization is not None and randomization.active()
+        self._randomizer = SceneRandomizer(self.model, randomization) if active else None
+
     def reset(self, seed: int) -> dict[str, np.ndarray]:
-        """Home configuration + noise, task objects and goals randomised from ``seed``."""
+        """Home configuration + noise, task objects and goals randomised from ``seed`` (and, with
+        :meth:`set_randomization`, the scene's look and physics, from another stream of it)."""
         m, d = self.model, self.data
         self.seed = int(seed)
+        self.randomized = self._randomizer.apply(self.seed) if self._randomizer is not None else {}
+        self._obs_cache = None  # the same state may look different now
         rng = np.random.default_rng(self.seed)
         mujoco.mj_resetData(m, d)
         for jid, v in self._home.items():
@@ -186,6 +203,11 @@ class Env:
         d.ctrl[self.grip_act] = self._gripper_ctrl(self.robot.home_gripper)
         self.task.reset(self, rng)
         mujoco.mj_forward(m, d)
+        # Latency: whole control steps of commands held back, then substeps of the step (2 ms each).
+        lag = int(round(self.randomized.get("latency", {}).get("ms", 0) / (1000.0 / self.fps / self.n_substeps)))
+        steps, self._lag_substeps = divmod(lag, self.n_substeps)
+        hold = np.r_[d.qpos[self.arm_qadr], self.robot.home_gripper]  # what the reset's ctrl holds
+        self._pending = deque([hold] * steps) if lag else None
         return self.observe()
 
     def set_arm(self, q: np.ndarray) -> None:
@@ -207,10 +229,18 @@ class Env:
 
     def advance(self, action: np.ndarray) -> None:
         """One control step of ``action`` (``joint_pos``: arm joint targets, rad, + gripper closedness),
-        physics only: :meth:`step` without observing (no camera renders), for looking ahead."""
+        physics only: :meth:`step` without observing (no camera renders), for looking ahead. Under
+        randomised latency the command executed is the one given that many steps before."""
         a = np.asarray(action)  # float32 or float64: the ufuncs below compute in float64 either way
         if a.shape != self._action_shape:
             raise DemoError("action", f"expected shape ({self.action_spec.dim},), got {a.shape}")
+        lag = 0  # physics substeps the previous command stays in effect (randomised latency)
+        if self._pending is not None:
+            self._pending.append(np.array(a, dtype=np.float64))
+            a = self._pending.popleft()
+            lag = self._lag_substeps
+            if lag:
+                mujoco.mj_step(self.model, self.data, nstep=lag)
         d, ctrl = self.data, self._ctrl
         if self._ctrl_arm is not None:  # contiguous arm actuators: their ctrl computed in place
             self._arm_ctrl(a[:-1], out=self._ctrl_arm)
@@ -218,7 +248,7 @@ class Env:
             ctrl[self.arm_act] = self._arm_ctrl(a[:-1].astype(np.float64))
         ctrl[self._grip_ctrl_idx] = self._gripper_ctrl(a[-1])
         clip(ctrl, self._ctrl_lo, self._ctrl_hi, out=ctrl)
-        mujoco.mj_step(self.model, d, nstep=self.n_substeps)
+        mujoco.mj_step(self.model, d, nstep=self.n_substeps - lag)
         self.task.after_step(self)
 
     @property
@@ -359,6 +389,15 @@ class Env:
     def set_state(self, state: np.ndarray) -> None:
         mujoco.mj_setState(self.model, self.data, np.asarray(state, dtype=np.float64), _STATE)
         mujoco.mj_forward(self.model, self.data)
+
+    def snapshot(self) -> tuple[np.ndarray, list[np.ndarray] | None]:
+        """Everything a step reads: the integration state and the commands a latency still holds back."""
+        return self.get_state(), None if self._pending is None else [a.copy() for a in self._pending]
+
+    def restore(self, snapshot: tuple[np.ndarray, list[np.ndarray] | None]) -> None:
+        state, pending = snapshot
+        self.set_state(state)
+        self._pending = None if pending is None else deque(pending)
 
     # ------------------------------------------------------------------ experts
     @property
