@@ -1,4 +1,5 @@
-"""`demo robot check CFG`: is a robot config enough for every task (see :mod:`demo.sim.robot_check`)."""
+"""`demo robot init MJCF`: write a starting robot config for an arm (see :mod:`demo.sim.robot_init`);
+`demo robot check CFG`: is a robot config enough for every task (see :mod:`demo.sim.robot_check`)."""
 
 from __future__ import annotations
 
@@ -7,13 +8,15 @@ from pathlib import Path
 import typer
 
 from demo.cli.main import app
-from demo.cli.options import json_option
+from demo.cli.options import json_option, overwrite_option
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
 from demo.sim.robot_check import MIN_SUCCESS, check_robot
+from demo.sim.robot_init import init_robot
 
-robot_app = typer.Typer(help="Robot configs: check that one is enough for every task.", no_args_is_help=True)
+robot_app = typer.Typer(help="Robot configs: write one for an arm's MJCF, check that one is enough for every task.",
+                        no_args_is_help=True)
 app.add_typer(robot_app, name="robot")
 
 
@@ -54,3 +57,39 @@ def robot_check(
         raise DemoError(config, f"the {worst} expert succeeds in {r['successes']}/{r['episodes']} episodes (needs "
                                 f"{MIN_SUCCESS:.0%}); check home, ee_site's axes (z out of the gripper, y along the "
                                 "fingers), max_joint_velocity and, for motor arms, pd_kp/pd_kd")
+
+
+@robot_app.command("init")
+def robot_init(
+    mjcf: Path = typer.Argument(..., metavar="MJCF", help="The arm's MJCF file.", show_default=False),
+    out: Path = typer.Option(None, "--out", metavar="TOML", help="The robot config to write.",
+                             show_default="MODEL_NAME.toml here"),
+    gripper: Path = typer.Option(None, "--gripper", metavar="GRIPPER_MJCF",
+                                 help="A parallel gripper in its own MJCF, for an arm file without one.", show_default="none"),
+    mount: str = typer.Option(None, "--mount", metavar="BODY", help="The arm body --gripper mounts on.",
+                              show_default="the last body of the arm's chain"),
+    png: Path = typer.Option(None, "--png", metavar="FILE", help="Write the robot at home in the pick scene.",
+                             show_default="no picture"),
+    overwrite: bool = overwrite_option("an existing --out"),
+    json_out: str = json_option("the report"),
+) -> None:
+    """Guess a robot config for an arm's MJCF: arm joints, gripper actuators and range, EE site, home, base position."""
+    if mount is not None and gripper is None:
+        raise DemoError(mjcf, "--mount names the arm body for --gripper; pass --gripper GRIPPER_MJCF too")
+    report = init_robot(mjcf, out=out, gripper=gripper, mount=mount, png=png, overwrite=overwrite)
+    shown = report_console(json_out)
+    shown.print(table(f"joints of {Path(report.mjcf).name}", ["joint", "type", "range", "body", "role"],
+                      [(j["name"], j["type"], "-" if j["range"] is None else f"{j['range'][0]:.4g} .. {j['range'][1]:.4g}",
+                        j["body"], j["role"]) for j in report.joints]))
+    shown.print(table("actuators", ["actuator", "kind", "drives", "role"],
+                      [(a["name"], a["kind"], a["drives"], a["role"]) for a in report.actuators]))
+    shown.print(table("sites", ["site", "body"], [(s["name"], s["body"]) for s in report.sites]))
+    shown.print(kv_table(f"{len(report.bodies)} bodies", [("bodies", ", ".join(report.bodies))]))
+    shown.print(kv_table(f"wrote {report.out}", [(k, v) for k, v in report.config.items()] + [
+        ("IK from home", f"{report.reach['reached']}/{report.reach['targets']} of the tasks' poses (worst group "
+                          f"{report.reach['worst_group_rate']:.0%})"),
+        ("picture", report.png or "-"),
+    ]))
+    shown.print(table("check these", ["note"], [(n,) for n in report.notes]))
+    shown.print(f"next: demo robot check {report.out} --png home.png")
+    write_json(report.to_json(), json_out)

@@ -29,7 +29,7 @@ _HINGE_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLID
 
 def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
     """The robot MJCF as a spec: the configured EE site added, motor actuators made PD servos."""
-    spec = _file_spec(robot)
+    spec = file_spec(robot)
     model = _compile(robot, spec)
     motors = [a for a in _driving_actuators(model, robot) if is_motor(model, a)]
     if motors:
@@ -37,8 +37,9 @@ def robot_spec(robot: RobotConfig) -> mujoco.MjSpec:
     return spec
 
 
-def _file_spec(robot: RobotConfig) -> mujoco.MjSpec:
-    """The MJCF as written, plus the configured EE site."""
+def file_spec(robot: RobotConfig) -> mujoco.MjSpec:
+    """The MJCF as written, plus what the config adds without compiling it: the gripper file, names for
+    unnamed actuators, the arm motors of ``add_actuators`` and the EE site (no PD layer yet)."""
     try:
         spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
     except Exception as exc:  # mujoco raises ValueError with the parser's (multi-line) message
@@ -187,7 +188,7 @@ def validated(robot: RobotConfig) -> RobotConfig:
     Each error names the config key (or the MJCF element) at fault and what to write instead.
     """
     where = robot.config_path
-    file_model = _compile(robot, _file_spec(robot))
+    file_model = _compile(robot, file_spec(robot))
     fname = robot.mjcf_path.name
 
     def need(kind: mujoco.mjtObj, name: str, what: str, key: str) -> int:

@@ -71,6 +71,8 @@ CASES: dict[str, Case] = {
     "quickstart": lambda i: (["--task", "reach", "--episodes", "2", "--poor", "1", "--steps", STEPS, "--eval-episodes", "2",
                               "--workers", "1", "--out", i.new("quickstart")],
                              {"collect", "curate", "convert", "train", "eval"}),
+    "robot init": lambda i: ([str(Path(__file__).resolve().parents[2] / "sim" / "assets" / "panda.xml"), "--out", i.new("arm.toml")],
+                             {"out", "joints", "actuators", "config", "notes", "reach"}),
     "robot check": lambda i: ([str(Path(__file__).resolve().parents[2] / "sim" / "assets" / "panda.toml"), "--episodes", "1", "--targets", "1"], {"dof", "joints", "ik", "experts", "ok"}),
     "bench load": lambda i: (["--frames", "20000", "--seconds", "0.1"], {"samples_per_s", "reference_samples_per_s"}),
     "bench collect": lambda i: (["--task", "reach", "--episodes", "2", "--seconds", "0.1", "--rounds", "1"],

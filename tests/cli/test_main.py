@@ -61,9 +61,10 @@ def test_one_style_for_every_command() -> None:
         for p in command.params:
             where = f"demo {name} {p.name}"
             if isinstance(p, typer.core.TyperArgument):
-                # TOML: a robot config (demo robot check); SUITE: a public benchmark's task set (demo bench suite)
-                if p.metavar not in ("STORE", "RUN", "DATASET", "TOML", "SUITE"):
-                    problems.append(f"{where}: a store is STORE, a run RUN, a robot config TOML")
+                # TOML: a robot config (demo robot check); SUITE: a public benchmark's task set (demo bench suite);
+                # MJCF: a robot's model file (demo robot init)
+                if p.metavar not in ("STORE", "RUN", "DATASET", "TOML", "SUITE", "MJCF"):
+                    problems.append(f"{where}: a store is STORE, a run RUN, a robot config TOML, a robot model MJCF")
                 continue
             if p.name == "help":
                 continue
