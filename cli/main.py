@@ -95,7 +95,7 @@ def _root(
 COMMANDS = {
     "collect": "collect", "info": "info", "quickstart": "quickstart", "export": "export", "import": "import_",
     "view": "view", "curate": "curate", "convert": "convert", "teleop": "teleop", "train": "train", "eval": "eval",
-    "bench": "bench", "robot": "robot", "irl": "irl",
+    "serve": "serve", "bench": "bench", "robot": "robot", "irl": "irl",
 }
 
 

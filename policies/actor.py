@@ -131,8 +131,8 @@ class PolicyActor:
             chosen = int(np.argmin((gap**2).mean(axis=(1, 2))))
         return chunks[chosen]
 
-    def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
-        """The policy's action for this frame (its own representation); advances one step."""
+    def _observe(self, frame: dict[str, np.ndarray]) -> None:
+        """Add ``frame`` to the observation history (the first fills it)."""
         obs = self.obs_spec.vector(frame)
         if not self.history:
             self.history.extend([obs] * self.n_obs)
@@ -142,6 +142,16 @@ class PolicyActor:
             self.history.append(obs)
             for key, h in self.images.items():
                 h.append(frame[key])
+
+    def chunk(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """``[H, A]``: the policy's chunk from this frame (its own representation, absolute), for an executor
+        that runs chunks itself (a robot-side client of :mod:`demo.deploy`); ``frame`` joins the history."""
+        self._observe(frame)
+        return self._query(frame).astype(np.float32)
+
+    def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's action for this frame (its own representation); advances one step."""
+        self._observe(frame)
         t = self.t
         if t - self.last_query >= self.execution.execute:
             self.chunks.append((t, self._query(frame)))

@@ -402,3 +402,34 @@ def bench_env(
         ("ratio (target >= 0.9)", f"{result['ratio']:.2f}"),
     ]))
     write_json(result, json_out)
+
+
+@bench_app.command("realtime")
+def bench_realtime(
+    run: Path = typer.Argument(..., metavar="RUN", help="A trained run (its task and robot are the stand-in's)."),
+    episodes: int = typer.Option(20, help="Real-time episodes per delay."),
+    delays_ms: str = typer.Option("0,100,200,400", "--delays-ms", help="Injected inference delays (ms), comma-separated."),
+    network_ms: float = typer.Option(20.0, "--network-ms", help="Injected network delay each way (ms)."),
+    seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
+    json_out: str = json_option(default="-"),
+) -> None:
+    """The policy server, the robot-side loop and the simulator as a real-time stand-in robot in another process: success, stalls and round trips per injected delay."""
+    from demo.deploy.controller import ControlConfig  # deferred: websockets and torch
+    from demo.deploy.realtime import RealtimeConfig, run_realtime
+
+    try:
+        delays = [float(d) / 1000 for d in delays_ms.split(",") if d.strip()]
+    except ValueError:
+        raise DemoError("--delays-ms", f"{delays_ms!r} is not a comma-separated list of numbers") from None
+    results = []
+    with bars() as progress:
+        for delay in delays:
+            results.append(run_realtime(RealtimeConfig(str(run), episodes=episodes, seed=seed, inference_delay_s=delay,
+                                                       control=ControlConfig(network_s=network_ms / 1000)), progress))
+    rows = [[f"{r['inference_delay_ms']:.0f}", f"{r['successes']}/{r['episodes']}",
+             f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}", f"{r['round_trip_ms']['median']:.0f}",
+             f"{r['stall_steps']}/{r['steps']}", r["clipped_commands"], r["loop_overruns"]] for r in results]
+    report_console(json_out).print(table(f"bench realtime: {run} ({network_ms:g} ms network each way)",
+                                         ["inference delay (ms)", "success", "95% CI", "round trip (ms)",
+                                          "stalled steps", "clipped", "overruns"], rows))
+    write_json({"run": str(run), "network_ms_each_way": network_ms, "results": results}, json_out)

@@ -106,6 +106,8 @@ SKIPS = {
                  "tests/rl/test_irl.py runs each algorithm in miniature with --json FILE",
     "bench resume": "kills and resumes real demo train processes (~40 s in miniature); "
                     "tests/training/test_trainer.py runs it with --json FILE and reads it",
+    "bench realtime": "needs a trained run and runs real-time episodes; tests/deploy/test_realtime.py runs it with "
+                      "--json FILE and reads it",
     "bench peer-gail": "needs the imitation library, installed in its own venv only (README); "
                        "tests/experiments/test_peer_gail.py runs it "
                        "in miniature there with --json FILE",

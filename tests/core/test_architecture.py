@@ -27,7 +27,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("training",),  # the trainer core
     ("imitation", "rl"),  # the algorithms
     ("algorithms",),  # every algorithm by name
-    ("view",),  # browser front ends: replay, live teleoperation
+    ("view", "deploy"),  # browser front ends: replay, live teleoperation; a policy served to a robot
     ("bench",),  # performance benchmarks
     ("experiments", "quickstart"),  # the training experiments; the whole pipeline on defaults
     ("cli",),

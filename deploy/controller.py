@@ -1,0 +1,197 @@
+"""The robot-side control loop: actions at the control rate from chunks computed elsewhere.
+
+Inference runs in a thread (:class:`ChunkRequester`): it sends the newest observation, with the
+control step it was taken at, whenever no request is in flight, and files the answer. The loop never
+waits for it. Each control step executes the merge of every chunk that covers the step
+(:class:`ChunkMerger`: a chunk answering the observation of step ``s`` holds actions for steps
+``s .. s + H - 1``; overlapping ones are averaged with ACT's weights ``exp(-m * age)``, the oldest
+heaviest), so a slow answer only means the older chunks carry on. Then :class:`Safety`: joint
+targets within the joint limits, at most ``max_joint_step`` rad from the last command per step,
+the gripper within [0, 1]; no chunk covering the step, or an observation older than ``stale_obs_s``,
+holds the last command (and counts a stall).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from websockets.sync.client import connect
+
+from demo.deploy.protocol import decode, encode, pack_array, unpack_array
+from demo.errors import DemoError
+
+
+@dataclass
+class ControlConfig:
+    rate_hz: float = 20.0
+    ensemble: float = 0.01  # ACT's m: weight exp(-m * age) of an overlapping chunk's action
+    max_joint_step: float = 0.1  # rad per control step (2 rad/s at 20 Hz)
+    stale_obs_s: float = 0.25  # an observation older than this: hold
+    network_s: float = 0.0  # injected one-way network delay (tests), each way
+
+
+class ChunkMerger:
+    """Chunks by the control step of the observation they answer."""
+
+    def __init__(self, ensemble: float):
+        self.ensemble = ensemble
+        self.chunks: deque[tuple[int, np.ndarray]] = deque()
+        self.lock = threading.Lock()
+
+    def add(self, start: int, chunk: np.ndarray) -> None:
+        with self.lock:
+            self.chunks.append((start, chunk))
+
+    def action(self, t: int) -> np.ndarray | None:
+        """The merged action for step ``t``, or None when no chunk covers it."""
+        with self.lock:
+            self.chunks = deque((s, c) for s, c in self.chunks if s + len(c) > t)  # drop the spent ones
+            covering = [c[t - s] for s, c in self.chunks if s <= t]
+        if not covering:
+            return None
+        w = np.exp(-self.ensemble * np.arange(len(covering)))
+        return (w[:, None] * np.stack(covering)).sum(axis=0) / w.sum()
+
+
+class ChunkRequester:
+    """The inference thread: one request in flight at a time, the answers filed in ``merger``."""
+
+    def __init__(self, url: str, merger: ChunkMerger, network_s: float = 0.0):
+        try:
+            self.ws = connect(url, max_size=2**26, open_timeout=10)
+        except OSError as exc:
+            raise DemoError(url, f"cannot connect to the policy server ({exc})") from None
+        self.merger, self.network_s = merger, network_s
+        self.pending: tuple[int, float, dict[str, np.ndarray]] | None = None
+        self.wake = threading.Condition()
+        self.busy = False
+        self.latencies: list[float] = []  # s, observation sent -> chunk filed
+        self.error: str | None = None
+        self.closed = False
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def reset(self, seed: int) -> None:
+        with self.wake:
+            while self.busy:
+                self.wake.wait()
+            self.ws.send(encode({"type": "reset", "seed": int(seed)}))
+            decode(self.ws.recv())
+
+    def submit(self, step: int, t_obs: float, frame: dict[str, np.ndarray]) -> bool:
+        """Ask for a chunk from this observation unless a request is in flight; whether it was sent."""
+        with self.wake:
+            if self.busy:
+                return False
+            self.pending, self.busy = (step, t_obs, frame), True
+            self.wake.notify_all()
+            return True
+
+    def _run(self) -> None:
+        while True:
+            with self.wake:
+                while self.pending is None and not self.closed:
+                    self.wake.wait()
+                if self.closed:
+                    return
+                step, t_obs, frame = self.pending
+                self.pending = None
+            sent = time.perf_counter()
+            try:
+                time.sleep(self.network_s)
+                self.ws.send(encode({"type": "obs", "seq": step, "t_obs": t_obs,
+                                     "frame": {k: pack_array(np.asarray(v)) for k, v in frame.items()}}))
+                answer = decode(self.ws.recv())
+                time.sleep(self.network_s)
+                if answer["type"] == "error":
+                    self.error = answer["problem"]
+                else:
+                    self.merger.add(int(answer["seq"]), unpack_array(answer["chunk"]).astype(np.float64))
+                    self.latencies.append(time.perf_counter() - sent)
+            except Exception as exc:  # noqa: BLE001 - the loop holds and reports; it must not die silently
+                self.error = str(exc)
+            with self.wake:
+                self.busy = False
+                self.wake.notify_all()
+
+    def close(self) -> None:
+        with self.wake:
+            self.closed = True
+            self.wake.notify_all()
+        self.ws.close()
+
+
+@dataclass
+class Safety:
+    """Limits every command obeys (module docstring); ``limits`` [n_arm, 2] rad."""
+
+    limits: np.ndarray
+    max_joint_step: float
+    clipped: int = 0
+
+    def __call__(self, action: np.ndarray, last: np.ndarray) -> np.ndarray:
+        a = np.array(action, dtype=np.float64)
+        n = len(self.limits)
+        arm = np.clip(a[:n], self.limits[:, 0], self.limits[:, 1])
+        arm = last[:n] + np.clip(arm - last[:n], -self.max_joint_step, self.max_joint_step)
+        grip = np.clip(a[n:], 0.0, 1.0)
+        out = np.r_[arm, grip]
+        self.clipped += int(not np.allclose(out, a))
+        return out
+
+
+@dataclass
+class EpisodeReport:
+    seed: int
+    success: bool
+    steps: int
+    stalls: int  # control steps that held the last command (no chunk, or a stale observation)
+    clipped: int  # commands the safety limits changed
+    latency_ms: list[float] = field(default_factory=list)
+    overruns: int = 0  # control steps the loop itself started late by more than a period
+
+
+def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: ControlConfig, seed: int) -> EpisodeReport:
+    """One episode of ``robot`` (:class:`demo.deploy.sim_robot.SimRobot`) under the real-time loop."""
+    merger = requester.merger
+    requester.reset(seed)  # waits for an answer still in flight, then files nothing more of the last episode
+    merger.chunks.clear()
+    robot.episode(seed)
+    period = 1.0 / config.rate_hz
+    step, t_obs, obs = robot.latest_obs
+    last = np.r_[obs["obs.joint_pos"], obs["obs.gripper"]].astype(np.float64)
+    stalls = overruns = steps = 0
+    safety.clipped = 0
+    start_latencies = len(requester.latencies)
+    t_next = time.perf_counter()
+    while not robot.done:
+        robot.poll()
+        if robot.done:
+            break
+        step, t_obs, obs = robot.latest_obs
+        requester.submit(step, t_obs, obs)
+        action = merger.action(step)  # the robot applies it to the state of ``step``, at its next tick
+        if action is None or time.time() - t_obs > config.stale_obs_s:
+            stalls += 1
+            command = last
+        else:
+            command = safety(action, last)
+        robot.send(command)
+        last = command
+        steps += 1
+        t_next += period
+        delay = t_next - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        elif -delay > period:
+            overruns += 1
+    robot.finish()
+    if requester.error:
+        raise DemoError("policy server", requester.error)
+    return EpisodeReport(seed, robot.success, steps, stalls, safety.clipped,
+                         [1000 * x for x in requester.latencies[start_latencies:]], overruns)

@@ -1,0 +1,122 @@
+"""The road to a robot (demo.deploy): the policy server answers what the policy itself computes, the
+robot-side loop merges chunks, keeps its limits and holds when answers are late, and the whole loop runs
+against the simulator stepping in real time in another process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from websockets.sync.client import connect
+
+from demo.cli.main import main
+from demo.deploy.controller import ChunkMerger, ChunkRequester, ControlConfig, Safety
+from demo.deploy.protocol import decode, encode, pack_array, unpack_array
+from demo.deploy.realtime import RealtimeConfig, run_realtime
+from demo.deploy.server import PolicyServer, ServerConfig
+from demo.errors import DemoError
+from demo.policies.checkpoint import load_bundle
+from demo.sim import make_env
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("deploy")
+    assert main(["collect", "--task", "pick", "--episodes", "30", "--seed", "0", "--workers", "0",
+                 "--out", str(root / "pick.zarr")]) == 0
+    assert main(["train", str(root / "pick.zarr"), "--steps", "2000", "--out", str(root / "run")]) == 0
+    return root / "run"
+
+
+def test_arrays_travel_bit_for_bit() -> None:
+    a = np.random.default_rng(0).normal(size=(2, 3, 4)).astype(np.float32)
+    image = np.arange(64 * 64 * 3, dtype=np.uint8).reshape(64, 64, 3)
+    message = decode(encode({"type": "obs", "frame": {"a": pack_array(a), "image": pack_array(image)}}))
+    np.testing.assert_array_equal(unpack_array(message["frame"]["a"]), a)
+    np.testing.assert_array_equal(unpack_array(message["frame"]["image"]), image)
+
+
+def test_chunks_merge_with_acts_weights_and_expire() -> None:
+    m = ChunkMerger(ensemble=0.5)
+    assert m.action(0) is None
+    m.add(0, np.zeros((4, 2)))
+    m.add(2, np.ones((4, 2)))
+    np.testing.assert_allclose(m.action(1), 0.0)
+    w = np.exp(-0.5 * np.arange(2))
+    np.testing.assert_allclose(m.action(3), w[1] / w.sum())  # the older chunk weighs more
+    np.testing.assert_allclose(m.action(5), 1.0)  # the first has expired
+    assert m.action(6) is None
+
+
+def test_safety_keeps_limits_and_speed() -> None:
+    safety = Safety(np.array([[-1.0, 1.0], [-1.0, 1.0]]), max_joint_step=0.1)
+    out = safety(np.array([5.0, -0.05, 1.7]), last=np.array([0.95, 0.0, 0.0]))
+    np.testing.assert_allclose(out, [1.0, -0.05, 1.0])
+    out = safety(np.array([-1.0, 0.0, 0.5]), last=np.array([0.5, 0.0, 0.0]))
+    np.testing.assert_allclose(out, [0.4, 0.0, 0.5])  # at most 0.1 rad a step
+    assert safety.clipped == 2
+
+
+def test_the_server_answers_the_policys_own_chunk(run: Path) -> None:
+    server = PolicyServer(ServerConfig(str(run), port=0)).start()
+    try:
+        env = make_env("pick")
+        frame = env.reset(123)
+        actor = load_bundle(run).actor()
+        actor.reset(0)
+        expected = actor.chunk(frame)
+        with connect(server.url) as ws:
+            ws.send(encode({"type": "reset", "seed": 0}))
+            assert decode(ws.recv())["type"] == "ready"
+            ws.send(encode({"type": "obs", "seq": 7, "t_obs": 1.5, "frame": {k: pack_array(v) for k, v in frame.items()}}))
+            answer = decode(ws.recv())
+            assert (answer["type"], answer["seq"], answer["t_obs"]) == ("chunk", 7, 1.5)
+            np.testing.assert_allclose(unpack_array(answer["chunk"]), expected, atol=1e-6)
+            ws.send(encode({"type": "obs", "seq": 8, "t_obs": 2.0, "frame": {}}))  # no observations at all
+            assert decode(ws.recv())["type"] == "error"
+        env.close()
+    finally:
+        server.close()
+    with pytest.raises(DemoError, match="cannot connect to the policy server"):
+        ChunkRequester(server.url, ChunkMerger(0.01))
+
+
+def test_the_loop_in_real_time_with_late_answers(run: Path) -> None:
+    fast = run_realtime(RealtimeConfig(str(run), episodes=3, control=ControlConfig(network_s=0.01)))
+    assert fast["episodes"] == 3 and fast["successes"] >= 1
+    assert fast["round_trip_ms"]["median"] >= 20  # the injected 10 ms each way
+    slow = run_realtime(RealtimeConfig(str(run), episodes=1, inference_delay_s=1.2))
+    # Answers 1.2 s late, chunks of 16 steps (0.8 s): the loop holds, stalling, rather than guess.
+    assert slow["stall_steps"] > 0.3 * slow["steps"] and slow["round_trip_ms"]["median"] >= 1200
+
+
+def test_bench_realtime_writes_every_delay(run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "rt.json"
+    assert main(["bench", "realtime", str(run), "--episodes", "1", "--delays-ms", "0,100", "--network-ms", "5",
+                 "--json", str(out)]) == 0
+    import json
+
+    results = json.loads(out.read_text())["results"]
+    assert [r["inference_delay_ms"] for r in results] == [0.0, 100.0] and all(r["episodes"] == 1 for r in results)
+    assert results[1]["round_trip_ms"]["median"] > results[0]["round_trip_ms"]["median"] + 80
+
+
+def test_demo_serve_listens_on_loopback(run: Path) -> None:
+    child = subprocess.Popen([sys.executable, "-m", "demo", "serve", str(run), "--port", "0"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env={**os.environ, "COLUMNS": "200"})
+    try:
+        line = child.stdout.readline()
+        assert "serving" in line and "ws://127.0.0.1:" in line
+        url = line.split(" at ")[1].split()[0]
+        with connect(url) as ws:
+            ws.send(encode({"type": "reset", "seed": 0}))
+            assert decode(ws.recv())["type"] == "ready"
+    finally:
+        child.terminate()
+        child.wait(timeout=20)
+    time.sleep(0.1)
