@@ -7,6 +7,7 @@ import signal
 from pathlib import Path
 
 import typer
+from rich.markup import escape
 
 from demo.cli.main import app
 from demo.cli.options import device_option, run_argument
@@ -19,13 +20,15 @@ def serve(
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (127.0.0.1: this machine only; "
                              "there is no authentication)."),
     port: int = typer.Option(8765, "--port", "-p", help="Port (0 picks a free one)."),
+    expose: bool = typer.Option(False, "--expose", help="Allow a --host other than loopback (no authentication)."),
     device: str = device_option(),
 ) -> None:
     """Serve a trained policy to a robot: observation in, action chunk out (WebSocket, msgpack)."""
     from demo.deploy.server import PolicyServer, ServerConfig  # deferred: torch stays out of demo --help
     from demo.policies.device import resolve_device
 
-    server = PolicyServer(ServerConfig(str(run), host=host, port=port, device=str(resolve_device(device))))
+    server = PolicyServer(ServerConfig(str(run), host=host, port=port, device=str(resolve_device(device)), expose=expose),
+                          log=lambda line: err_console.print(f"[yellow]warning:[/] {escape(line)}", soft_wrap=True))
     console.print(f"serving {run} at {server.url} (Ctrl-C stops)")
     signal.signal(signal.SIGTERM, lambda *_: server.server.shutdown())
     try:

@@ -8,7 +8,8 @@ waits for it. Each control step executes the merge of every chunk that covers th
 heaviest), so a slow answer only means the older chunks carry on. Then :class:`Safety`: joint
 targets within the joint limits, at most ``max_joint_step`` rad from the last command per step,
 the gripper within [0, 1]; no chunk covering the step, or an observation older than ``stale_obs_s``,
-holds the last command (and counts a stall).
+holds the last command (and counts a stall). ``synchronous``: the baseline a robot that waits for its
+policy gets, each step's own chunk awaited before the step's merged action is sent.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ class ControlConfig:
     max_joint_step: float = 0.1  # rad per control step (2 rad/s at 20 Hz)
     stale_obs_s: float = 0.25  # an observation older than this: hold
     network_s: float = 0.0  # injected one-way network delay (tests), each way
+    # The baseline: each step waits for the chunk answering its own observation, then executes the merge
+    # (the robot, which does not wait, holds the last command meanwhile).
+    synchronous: bool = False
 
 
 class ChunkMerger:
@@ -91,6 +95,12 @@ class ChunkRequester:
             self.pending, self.busy = (step, t_obs, frame), True
             self.wake.notify_all()
             return True
+
+    def wait(self) -> None:
+        """Until no request is in flight."""
+        with self.wake:
+            while self.busy:
+                self.wake.wait()
 
     def _run(self) -> None:
         while True:
@@ -174,7 +184,11 @@ def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: C
         if robot.done:
             break
         step, t_obs, obs = robot.latest_obs
-        requester.submit(step, t_obs, obs)
+        if config.synchronous:
+            requester.submit(step, t_obs, obs)
+            requester.wait()
+        else:
+            requester.submit(step, t_obs, obs)
         action = merger.action(step)  # the robot applies it to the state of ``step``, at its next tick
         if action is None or time.time() - t_obs > config.stale_obs_s:
             stalls += 1

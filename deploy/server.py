@@ -8,11 +8,15 @@ inference delay, to test a client against a slower machine.
 
 from __future__ import annotations
 
+import ipaddress
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import msgspec
+import numpy as np
 import torch
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.server import Server, ServerConnection, serve
@@ -29,13 +33,27 @@ class ServerConfig:
     port: int = 8765  # 0: a free one
     device: str = "cpu"
     delay_s: float = 0.0  # added to every inference (tests)
+    expose: bool = False  # allow a host other than loopback (there is no authentication)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 class PolicyServer:
     """The policy of ``config.run``, served; :meth:`start` in a thread, or :meth:`serve_forever`."""
 
-    def __init__(self, config: ServerConfig):
+    def __init__(self, config: ServerConfig, log: Callable[[str], None] = lambda line: None):
+        if not is_loopback(config.host) and not config.expose:
+            raise DemoError("--host", f"{config.host} is reachable from other machines and the server has no "
+                                      "authentication: pass --expose to serve there anyway")
         self.config = config
+        self.log = log  # one line per problem with a client's message (the server keeps serving)
         self.bundle = load_bundle(config.run, config.device)
         self.lock = threading.Lock()  # one inference at a time: torch on a few threads
         try:
@@ -61,14 +79,17 @@ class PolicyServer:
 
     def _handle(self, ws: ServerConnection) -> None:
         actor = self.bundle.actor()
+        who = "{}:{}".format(*ws.remote_address[:2]) if ws.remote_address else "a client"
         try:
             for raw in ws:
                 try:
                     ws.send(encode(self._answer(actor, decode(raw if isinstance(raw, bytes) else raw.encode()))))
-                except (ValueError, KeyError, TypeError, DemoError) as exc:
-                    ws.send(encode({"type": "error", "problem": str(exc)}))
+                except (ValueError, KeyError, TypeError, IndexError, DemoError, msgspec.MsgspecError) as exc:
+                    problem = f"{type(exc).__name__}: {exc}" if not isinstance(exc, DemoError) else str(exc)
+                    self.log(f"client {who}: {problem}")
+                    ws.send(encode({"type": "error", "problem": problem}))
         except ConnectionClosed:
-            pass
+            self.log(f"client {who}: disconnected")
 
     def _answer(self, actor: Any, message: dict[str, Any]) -> dict[str, Any]:
         if message["type"] == "reset":
@@ -77,6 +98,14 @@ class PolicyServer:
         if message["type"] != "obs":
             raise ValueError(f"unknown message type {message['type']!r}")
         frame = {k: unpack_array(v) for k, v in message["frame"].items()}
+        spec = self.bundle.obs_spec
+        for key, shape in (*zip(spec.source_keys, (None,) * len(spec.source_keys)), *zip(spec.images, spec.image_shapes)):
+            if key not in frame:
+                raise ValueError(f"the observation has no {key}")
+            if shape is not None and tuple(frame[key].shape) != tuple(shape):
+                raise ValueError(f"{key} is {tuple(frame[key].shape)}, the policy reads {tuple(shape)}")
+            if not np.isfinite(frame[key]).all():
+                raise ValueError(f"{key} holds non-finite values")
         start = time.perf_counter()
         with self.lock, torch.inference_mode():
             chunk = actor.chunk(frame)

@@ -410,6 +410,8 @@ def bench_realtime(
     episodes: int = typer.Option(20, help="Real-time episodes per delay."),
     delays_ms: str = typer.Option("0,100,200,400", "--delays-ms", help="Injected inference delays (ms), comma-separated."),
     network_ms: float = typer.Option(20.0, "--network-ms", help="Injected network delay each way (ms)."),
+    synchronous: bool = typer.Option(False, "--synchronous", help="The baseline: every step waits for its own "
+                                     "observation's chunk before it acts."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
     json_out: str = json_option(default="-"),
 ) -> None:
@@ -425,11 +427,14 @@ def bench_realtime(
     with bars() as progress:
         for delay in delays:
             results.append(run_realtime(RealtimeConfig(str(run), episodes=episodes, seed=seed, inference_delay_s=delay,
-                                                       control=ControlConfig(network_s=network_ms / 1000)), progress))
+                                                       control=ControlConfig(network_s=network_ms / 1000,
+                                                                             synchronous=synchronous)), progress))
     rows = [[f"{r['inference_delay_ms']:.0f}", f"{r['successes']}/{r['episodes']}",
              f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}", f"{r['round_trip_ms']['median']:.0f}",
              f"{r['stall_steps']}/{r['steps']}", r["clipped_commands"], r["loop_overruns"]] for r in results]
-    report_console(json_out).print(table(f"bench realtime: {run} ({network_ms:g} ms network each way)",
+    mode = "synchronous" if synchronous else "asynchronous, chunks merged"
+    report_console(json_out).print(table(f"bench realtime: {run} ({mode}; {network_ms:g} ms network each way)",
                                          ["inference delay (ms)", "success", "95% CI", "round trip (ms)",
                                           "stalled steps", "clipped", "overruns"], rows))
-    write_json({"run": str(run), "network_ms_each_way": network_ms, "results": results}, json_out)
+    write_json({"run": str(run), "network_ms_each_way": network_ms, "synchronous": synchronous, "results": results},
+               json_out)

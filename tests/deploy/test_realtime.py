@@ -93,6 +93,10 @@ def test_the_loop_in_real_time_with_late_answers(run: Path) -> None:
     slow = run_realtime(RealtimeConfig(str(run), episodes=1, inference_delay_s=1.2))
     # Answers 1.2 s late, chunks of 16 steps (0.8 s): the loop holds, stalling, rather than guess.
     assert slow["stall_steps"] > 0.3 * slow["steps"] and slow["round_trip_ms"]["median"] >= 1200
+    # The baseline that waits: at 0.3 s a step, the loop acts a fraction of the robot's 20 Hz ticks.
+    waiting = run_realtime(RealtimeConfig(str(run), episodes=1, inference_delay_s=0.3,
+                                          control=ControlConfig(synchronous=True)))
+    assert waiting["loop_overruns"] > 0 and waiting["steps"] < 0.5 * 160
 
 
 def test_bench_realtime_writes_every_delay(run: Path, tmp_path: Path) -> None:
@@ -120,3 +124,40 @@ def test_demo_serve_listens_on_loopback(run: Path) -> None:
         child.terminate()
         child.wait(timeout=20)
     time.sleep(0.1)
+
+
+def test_bad_input_to_the_server(run: Path) -> None:
+    """Malformed, truncated and ill-shaped messages, two clients at once and one vanishing mid-request: one
+    line each in the server's log, an error answer, and the server keeps serving."""
+    lines: list[str] = []
+    server = PolicyServer(ServerConfig(str(run), port=0), log=lines.append).start()
+    frame = make_env("pick").reset(5)
+    good = encode({"type": "obs", "seq": 1, "t_obs": 0.0, "frame": {k: pack_array(v) for k, v in frame.items()}})
+    wrong_shape = {**frame, "obs.joint_pos": np.zeros(3, np.float32)}
+    wrong_dtype = {k: pack_array(v) for k, v in frame.items()}
+    wrong_dtype["obs.joint_pos"] = ["|S3", [7], b"x" * 21]
+    try:
+        with connect(server.url) as a, connect(server.url) as b:
+            for bad, needle in [(b"\x93garbage", "MsgspecError|DecodeError|ValueError"), (good[:40], "Decode|Error"),
+                                (encode({"type": "obs", "seq": 2, "t_obs": 0.0, "frame": {k: pack_array(v) for k, v in
+                                                                                        wrong_shape.items()}}),
+                                 "obs.joint_pos is"),
+                                (encode({"type": "obs", "seq": 3, "t_obs": 0.0, "frame": wrong_dtype}), "Error"),
+                                (encode({"type": "nonsense"}), "unknown message type")]:
+                a.send(bad)
+                answer = decode(a.recv())
+                assert answer["type"] == "error", bad[:20]
+                b.send(good)  # the other client is served meanwhile
+                assert decode(b.recv())["type"] == "chunk"
+        vanishing = connect(server.url)
+        vanishing.send(good)
+        vanishing.close()  # before reading the answer
+        with connect(server.url) as c:
+            c.send(good)
+            assert decode(c.recv())["type"] == "chunk"
+    finally:
+        server.close()
+    assert len([line for line in lines if "disconnected" not in line]) == 5
+    assert all("\n" not in line and "Traceback" not in line for line in lines)
+    with pytest.raises(DemoError, match="pass --expose"):
+        PolicyServer(ServerConfig(str(run), host="0.0.0.0", port=0))
