@@ -80,6 +80,9 @@ def train(
                                 show_default="small"),
     crop: float = typer.Option(None, help="Random-crop side as a fraction of the image (centre crop at evaluation); 1 = off.",
                                show_default="0.875"),
+    color_jitter: float = typer.Option(None, "--color-jitter", metavar="J", help="Colour jitter of camera images in "
+                                       "training: brightness +-J, contrast and saturation x 1+-J (0 = off).",
+                                       show_default="0"),
     device: str = device_option(),
     head: str = typer.Option(None, metavar="mse|gmm|discrete", help="bc, dagger: output head (= --policy-opt head=...): "
                              "regression, Gaussian mixture or per-dimension bins over the chunk.", show_default="mse"),
@@ -133,7 +136,8 @@ def train(
         out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), obs_keys=_obs_keys(obs_keys),
         relative_actions=not absolute_actions, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, robot=str(robot) if robot else None,
-        device=device, encoder={k: v for k, v in (("backbone", encoder), ("crop", crop)) if v is not None},
+        device=device, encoder={k: v for k, v in (("backbone", encoder), ("crop", crop), ("color_jitter", color_jitter))
+                                if v is not None},
     )
     how = dict(resume=resume, overwrite=overwrite, command=invocation())
     if algo in FAMILY:

@@ -35,10 +35,13 @@ BACKBONES = ("small", "resnet18")
 
 @dataclass
 class EncoderConfig:
-    """How camera images become features (``demo train --encoder``, ``--crop``)."""
+    """How camera images become features (``demo train --encoder``, ``--crop``, ``--color-jitter``)."""
 
     backbone: str = "small"  # small (CPU) | resnet18 (GroupNorm ResNet-18, a GPU encoder)
     crop: float = 0.875  # random crop side as a fraction of the image side (DP: 84 of 96); 1 = no crop
+    # Colour jitter in training (0 = off): brightness shifted by up to j, contrast and saturation scaled by
+    # 1 +- j, per image; against lighting and colour shifts (demo eval --shift lighting|texture)
+    color_jitter: float = 0.0
     keypoints: int = 32  # spatial-softmax keypoints per camera (2 features each)
     features: int = 64  # features per camera after a linear layer over the keypoints
 
@@ -49,7 +52,10 @@ class EncoderConfig:
             raise ValueError(f"crop must lie in [0.25, 1], got {self.crop}")
         if self.keypoints < 1 or self.features < 1:
             raise ValueError("keypoints and features must be positive")
+        if not 0.0 <= float(self.color_jitter) <= 1.0:
+            raise ValueError(f"color_jitter must lie in [0, 1], got {self.color_jitter}")
         self.crop = float(self.crop)
+        self.color_jitter = float(self.color_jitter)
 
     def crop_size(self, height: int, width: int) -> tuple[int, int]:
         """Crop window (height, width) in pixels for an image of ``height x width``."""
@@ -136,12 +142,38 @@ class CropAugment(nn.Module):
         return images.flatten(2).gather(2, flat).reshape(n, images.shape[1], ch, cw)
 
 
+class ColorJitter(nn.Module):
+    """Per image in training, on pixels in [-1, 1]: brightness + U(-j, j), contrast and saturation x U(1 - j,
+    1 + j) about the image's mean and each pixel's grey; nothing in evaluation."""
+
+    def __init__(self, strength: float):
+        super().__init__()
+        self.strength = strength
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """``[N, 3, H, W]`` -> the same, jittered (clipped to [-1, 1])."""
+        j = self.strength
+        if not self.training or j == 0:
+            return images
+        n = images.shape[0]
+
+        def draw(low: float, high: float) -> torch.Tensor:
+            return torch.empty(n, 1, 1, 1, device=images.device).uniform_(low, high)
+
+        grey = images.mean(dim=1, keepdim=True)
+        x = grey + (images - grey) * draw(1 - j, 1 + j)  # saturation
+        mean = x.mean(dim=(1, 2, 3), keepdim=True)
+        x = mean + (x - mean) * draw(1 - j, 1 + j)  # contrast
+        return (x + draw(-j, j)).clamp_(-1.0, 1.0)  # brightness
+
+
 class CameraEncoder(nn.Module):
     """One camera's uint8 images ``[N, H, W, 3]`` -> features ``[N, features]``."""
 
     def __init__(self, height: int, width: int, config: EncoderConfig):
         super().__init__()
         crop = config.crop_size(height, width)
+        self.jitter = ColorJitter(config.color_jitter)
         self.augment = CropAugment(height, width, crop)
         self.backbone = resnet18_gn() if config.backbone == "resnet18" else small_cnn()
         with torch.no_grad():
@@ -151,7 +183,7 @@ class CameraEncoder(nn.Module):
 
     def preprocess(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 ``[N, H, W, 3]`` -> the backbone's input: floats in [-1, 1], ``[N, 3, ch, cw]``, cropped."""
-        return self.augment(images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0))
+        return self.augment(self.jitter(images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)))
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """:meth:`preprocess`'s output -> ``[N, features]``."""

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from demo.policies.encoders import CameraEncoder, CropAugment, EncoderConfig, SpatialSoftmax, resnet18_gn, small_cnn
+from demo.policies.encoders import (CameraEncoder, ColorJitter, CropAugment, EncoderConfig, SpatialSoftmax, resnet18_gn,
+                                    small_cnn)
 
 
 def test_spatial_softmax_finds_a_bright_pixel() -> None:
@@ -48,5 +49,19 @@ def test_config_is_checked() -> None:
         EncoderConfig(backbone="vgg")
     with pytest.raises(ValueError, match="crop"):
         EncoderConfig(crop=1.5)
+    with pytest.raises(ValueError, match="color_jitter"):
+        EncoderConfig(color_jitter=2.0)
     assert EncoderConfig(crop=0.875).crop_size(64, 64) == (56, 56)
     assert EncoderConfig().crop_size(4, 4) == (4, 4)  # never larger than the image
+
+
+def test_colour_jitter_varies_images_in_training_only() -> None:
+    torch.manual_seed(0)
+    images = torch.rand(8, 3, 16, 16) * 1.6 - 0.8
+    jitter = ColorJitter(0.3)
+    out = jitter.train()(images)
+    assert out.shape == images.shape and out.min() >= -1 and out.max() <= 1
+    shift = (out - images).mean(dim=(1, 2, 3))
+    assert shift.std() > 0.02  # per image, not one change for the batch
+    assert torch.equal(jitter.eval()(images), images)
+    assert torch.equal(ColorJitter(0.0).train()(images), images)
