@@ -16,7 +16,7 @@ from demo.imitation.config import DaggerConfig
 from demo.training.config import LOOP_DEFAULTS, RESUME_KEYS, TrainConfig, setting
 
 # Options that steer the command, not the configuration (where it runs, what it does with the result).
-CONTROLS = {"--head", "--crop", "--algo-opt", "--workers", "--executor", "--address", "--resume", "--overwrite", "--json",
+CONTROLS = {"--head", "--crop", "--color-jitter", "--algo-opt", "--workers", "--executor", "--address", "--resume", "--overwrite", "--json",
             "--nproc", "--distil", "--help"}
 
 
