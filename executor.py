@@ -7,10 +7,11 @@ function of the job (an episode index or seed, and the fixed ``init_args``), so 
 job, and how often, changes nothing: results come back in job order and the single writer in this
 process commits the same bytes whatever the executor and the number of workers.
 
-- ``process``: ``workers`` processes of this machine, a ``spawn`` multiprocessing pool (no inherited
+- ``process``: ``workers`` processes of this machine, started with ``spawn`` (no inherited
   MuJoCo/GL/torch state; the same behaviour on every OS). Ctrl-C (SIGINT to the process group) and
-  SIGTERM interrupt this process: the workers ignore SIGINT and end quietly with the pool, and what
-  the caller committed stays; a worker whose parent was killed outright ends quietly too.
+  SIGTERM interrupt this process: the workers ignore SIGINT and are ended quietly, and what the
+  caller committed stays; a worker whose parent was killed outright ends quietly too. A worker that
+  dies (killed for memory, say) ends the map with a one-line error naming its job.
 - ``ray``: ``workers`` Ray actors (one CPU each) on the Ray cluster at ``address``, else on a local
   one started here with ``workers`` CPUs, reachable from this machine alone (127.0.0.1), and shut
   down afterwards. An actor that dies mid-job (its process killed, its node lost) is replaced and
@@ -29,6 +30,7 @@ from __future__ import annotations
 import ctypes
 import logging
 import multiprocessing as mp
+import multiprocessing.connection
 import os
 import signal
 import sys
@@ -37,7 +39,6 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
-from functools import partial
 from typing import Any
 
 from demo.errors import DemoError
@@ -45,7 +46,7 @@ from demo.errors import DemoError
 KINDS = ("process", "ray")
 RAY_INSTALL = "Ray is not installed: pip install -e '.[ray]' (or pip install 'ray>=2.40')"
 LOOPBACK = "127.0.0.1"  # where a local Ray started here listens
-IN_FLIGHT = 2  # jobs queued per Ray actor: the next one is there when the current one ends
+IN_FLIGHT = 2  # jobs queued per worker or Ray actor: the next one is there when the current one ends
 PR_SET_PDEATHSIG = 1  # Linux prctl(2): the signal a process gets when its parent dies
 LOOKAHEAD = 32  # at most this many jobs (or 4 per worker) run ahead of the next result to commit
 
@@ -98,7 +99,7 @@ def ordered_map(init: Callable[..., None], init_args: Sequence[Any], run: Callab
     if config.kind == "ray":
         yield from _ray_map(init, init_args, run, jobs, config, label)
     else:
-        yield from _process_map(init, init_args, run, jobs, max(1, config.workers))
+        yield from _process_map(init, init_args, run, jobs, max(1, config.workers), label)
 
 
 @contextmanager
@@ -155,8 +156,8 @@ _init_error: Exception | None = None  # what this worker's init raised, raised a
 
 
 def _start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
-    """A worker's start: ``init``, keeping its error for the jobs (a pool whose initializer raises
-    restarts it forever; a Ray actor whose constructor raises loses the error's type)."""
+    """A worker's start: ``init``, keeping its error for the jobs (raised by each, as itself: a Ray
+    actor whose constructor raises loses the error's type)."""
     global _init_error
     try:
         init(*init_args)
@@ -164,24 +165,12 @@ def _start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
         _init_error = exc
 
 
-def _pool_start(init: Callable[..., None], init_args: Sequence[Any]) -> None:
-    """A pool worker's start: Ctrl-C reaches the whole process group, but only the parent acts on it
-    (it terminates the pool, and SIGTERM ends a worker without a word). A worker interrupted itself
-    printed a traceback, and one interrupted while sending a result left a torn message in the pipe
-    that hung the parent's pool shutdown. (Workers the pool starts at its creation inherit SIGINT
-    ignored already; this covers one it starts later, to replace a worker that died.)"""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _exit_with_parent()
-    _start(init, init_args)
-
-
 def _exit_with_parent() -> None:
-    """End this worker, quietly, when its parent is gone (killed outright, it terminated no pool):
+    """End this worker, quietly, when its parent is gone (killed outright, it ended no worker):
     sending its next result failed with a BrokenPipeError traceback. On Linux the kernel ends it at
     once (SIGTERM, not handled: no word; it is sent when the parent's thread that started the worker
-    ends, and the pool starts workers from the thread that runs the whole map, or from its own
-    thread, which outlives them); elsewhere, and should that fail, a thread waiting on the parent
-    does, as soon as it runs."""
+    ends, and workers are started from the thread that runs the whole map, which outlives them);
+    elsewhere, and should that fail, a thread waiting on the parent does, as soon as it runs."""
     parent = mp.parent_process()
     if parent is None:
         return
@@ -196,6 +185,32 @@ def _exit_with_parent() -> None:
 def _wait_then_exit(parent: Any) -> None:
     parent.join()  # returns once the parent process is gone (at once if it already is)
     os._exit(0)
+
+
+def _worker_main(pipe: Any, init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any]) -> None:
+    """A worker process: ``init``, then ``(i, job)`` from the pipe until ``None`` (or the pipe's end),
+    answering each with ``(i, True, result)`` or ``(i, False, exception)``. Ctrl-C reaches the whole
+    process group, but only the parent acts on it (it terminates the workers, and SIGTERM ends one
+    without a word): a worker interrupted itself printed a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent()
+    _start(init, init_args)
+    while True:
+        try:
+            message = pipe.recv()
+        except (EOFError, OSError):
+            return
+        if message is None:
+            return
+        i, job = message
+        try:
+            answer = (i, True, _call(run, job))
+        except Exception as exc:  # noqa: BLE001 - raised again in the parent, as itself
+            answer = (i, False, exc)
+        try:
+            pipe.send(answer)
+        except Exception as exc:  # noqa: BLE001 - a result or an exception that does not pickle
+            pipe.send((i, False, RuntimeError(f"job {i}: {type(exc).__name__}: {exc}")))
 
 
 def _call(run: Callable[[Any], Any], job: Any) -> Any:
@@ -217,28 +232,92 @@ class _RayWorker:
 
 # ---------------------------------------------------------------------------------- process
 def _process_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[[Any], Any], jobs: list[Any],
-                 workers: int) -> Iterator[list[Any]]:
+                 workers: int, label: Callable[[Any], str]) -> Iterator[list[Any]]:
+    """Worker processes, each with its own pipe: this process hands each at most :data:`IN_FLIGHT` jobs
+    and waits on every pipe and every process at once, so a worker that dies (killed for memory, a
+    crash in native code) ends the map with a one-line error naming its job, never a hang.
+    (``multiprocessing.Pool`` lost such a worker's job and waited for it forever, and its
+    ``terminate`` waits for a lock in the shared task queue that a worker which died holding it
+    never releases.)"""
     ctx = mp.get_context("spawn")  # no inherited MuJoCo/GL/torch thread state (nor CUDA)
+    procs: list[Any] = []
+    pipes: list[Any] = []
+    finished = False
     with _terminate_interrupts():
-        # SIGINT ignored while the workers start is inherited through exec (and Python leaves it so):
-        # that covers a worker's imports before _pool_start runs. A Ctrl-C in these few milliseconds
-        # is lost.
-        with _handler(signal.SIGINT, signal.SIG_IGN):
-            pool = ctx.Pool(workers, initializer=_pool_start, initargs=(init, tuple(init_args)))
         try:
-            results = pool.imap(partial(_call, run), jobs, chunksize=1)
-            for first in results:
-                ready = [first]
-                while True:
-                    try:
-                        ready.append(results.next(timeout=0))
-                    except (mp.TimeoutError, StopIteration):
+            # SIGINT ignored while the workers start is inherited through exec (and Python leaves it so):
+            # that covers a worker's imports before _worker_main runs. A Ctrl-C in these few
+            # milliseconds is lost.
+            with _handler(signal.SIGINT, signal.SIG_IGN):
+                for _ in range(min(workers, len(jobs))):
+                    ours, theirs = ctx.Pipe()
+                    proc = ctx.Process(target=_worker_main, args=(theirs, init, tuple(init_args), run), daemon=True,
+                                       name="demo-worker")
+                    proc.start()
+                    theirs.close()  # the worker's end lives in the worker: EOF here once it is gone
+                    procs.append(proc)
+                    pipes.append(ours)
+            held: list[deque[int]] = [deque() for _ in procs]  # per worker: its jobs in flight, oldest first
+            done: dict[int, Any] = {}
+            submitted = committed = 0
+            lookahead = max(LOOKAHEAD, 4 * len(procs))
+            while committed < len(jobs):
+                while submitted < min(len(jobs), committed + lookahead):
+                    slot = min(range(len(procs)), key=lambda s: len(held[s]))
+                    if len(held[slot]) >= IN_FLIGHT:
                         break
-                yield ready
-            pool.close()
+                    held[slot].append(submitted)
+                    pipes[slot].send((submitted, jobs[submitted]))
+                    submitted += 1
+                for pipe in mp.connection.wait([p for s, p in enumerate(pipes) if held[s]]):
+                    slot = pipes.index(pipe)
+                    try:
+                        i, ok, value = pipe.recv()
+                    except (EOFError, OSError):
+                        procs[slot].join(timeout=5)
+                        raise DemoError(label(jobs[held[slot][0]]),
+                                        f"its worker process died ({_exit_reason(procs[slot].exitcode)})") from None
+                    if not ok:
+                        raise value
+                    held[slot].remove(i)
+                    done[i] = value
+                batch = []
+                while committed in done:
+                    batch.append(done.pop(committed))
+                    committed += 1
+                if batch:
+                    yield batch
+            finished = True
         finally:
-            pool.terminate()
-            pool.join()
+            _stop(procs, pipes, politely=finished)
+
+
+def _stop(procs: list[Any], pipes: list[Any], politely: bool) -> None:
+    """End the workers: after the last job, ask them to (each returns normally, running its exit
+    handlers); after an error or Ctrl-C, terminate them at once (SIGTERM ends a worker without a word)."""
+    for proc, pipe in zip(procs, pipes):
+        if politely:
+            try:
+                pipe.send(None)
+            except OSError:
+                pass
+        else:
+            proc.terminate()
+    for proc, pipe in zip(procs, pipes):
+        proc.join(timeout=10 if politely else None)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join()
+        pipe.close()
+
+
+def _exit_reason(code: int | None) -> str:
+    if code is None:
+        return "it closed its pipe"
+    if code < 0:
+        name = signal.Signals(-code).name if -code in signal.valid_signals() else str(-code)
+        return f"killed by {name}" + (": out of memory?" if -code == signal.SIGKILL else "")
+    return f"exit code {code}"
 
 
 @contextmanager
@@ -264,8 +343,7 @@ def _interrupt(signum: int, frame: Any) -> None:
 @contextmanager
 def _terminate_interrupts() -> Iterator[None]:
     """SIGTERM ends this process as Ctrl-C does while worker processes run (unless a handler of its
-    own is set): the pool is shut down and the caller's committed work kept. Killed outright, the
-    process left its pool's semaphores to the resource tracker, which warned of them as leaked."""
+    own is set): the workers are ended and the caller's committed work kept."""
     if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
         yield
         return

@@ -217,3 +217,25 @@ def test_cli_refuses_executor_flags_where_they_do_not_apply(tmp_path: Path, caps
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and err.startswith(needle), (argv, err)
     assert not any(tmp_path.iterdir())
+
+
+def _dies_at_job_1(job: int) -> int:
+    if job == 1:
+        os._exit(3)
+    return job
+
+
+def _nothing() -> None:
+    pass
+
+
+def test_a_worker_process_that_dies_fails_in_one_line_naming_its_job() -> None:
+    """Not a hang: a worker killed for memory, or crashing in native code, used to leave its job
+    waiting forever in a multiprocessing pool."""
+    with pytest.raises(DemoError, match=r"^job 1: its worker process died \(exit code 3\)$"):
+        for _ in ordered_map(_nothing, (), _dies_at_job_1, range(4), ExecutorConfig("process", 2),
+                             label=lambda j: f"job {j}"):
+            pass
+    results = [r for ready in ordered_map(_nothing, (), _dies_at_job_1, [0, 2, 3, 4, 5], ExecutorConfig("process", 2))
+               for r in ready]
+    assert results == [0, 2, 3, 4, 5]  # in job order
