@@ -19,6 +19,7 @@ from demo.executor import ExecutorConfig
 from demo.sim.foreign import task_name
 from demo.sim.randomize import Randomization
 from demo.sim.render import parse_camera
+from demo.store.instructions import check_instruction
 
 SOURCES = ("scripted", "kinesthetic", "vr")
 
@@ -65,6 +66,10 @@ def collect(
                                   "randomisation drawn per episode from its seed: light, medium or heavy (every kind at "
                                   "level 1, 2, 3), levels per kind (friction=2,camera=1), or a TOML of them; kinds: "
                                   "lighting, camera, texture, friction, mass, latency.", show_default="none"),
+    instruction: str = typer.Option(None, "--instruction", metavar="TEXT", help="What every episode is told to do, in "
+                                    "words (the episode table's instruction column; an instruction-conditioned policy "
+                                    "trains on it).", show_default="the environment's own (Meta-World's task as a "
+                                    "sentence), else none"),
     append: bool = typer.Option(False, "--append", help="Append to an existing store of the same task and robot."),
     min_success: float = typer.Option(
         None, "--min-success", metavar="P", min=0.0, max=1.0,
@@ -78,6 +83,8 @@ def collect(
     if source not in SOURCES:
         raise DemoError("--source", f"unknown source {source!r} (choose from {', '.join(SOURCES)})")
     cameras = tuple(parse_camera(c, "--camera") for c in camera)
+    if instruction is not None:
+        instruction = check_instruction(instruction)
     if source != "scripted":
         if input is None:
             raise DemoError("--input", f"--source {source} needs an input file (--input)")
@@ -97,12 +104,13 @@ def collect(
         if source == "scripted":
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
                                    robot=robot_config, task_options=options, cameras=cameras, expert=expert,
-                                   randomize=Randomization.parse(randomize).to_json() if randomize else {})
+                                   randomize=Randomization.parse(randomize).to_json() if randomize else {},
+                                   instruction=instruction)
             result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
                                       overwrite=overwrite, progress=progress)
         else:
             human = dict(operator=operator, robot=robot_config, task_options=options, cameras=cameras, append=append,
-                         overwrite=overwrite, progress=progress)
+                         overwrite=overwrite, progress=progress, instruction=instruction or "")
             if source == "vr":
                 result = collect_vr(task, input, out, seed, calib=calib, scale=scale, ik=ik, smoothing=smoothing, **human)
             else:

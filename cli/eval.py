@@ -49,6 +49,9 @@ def eval_(
     video_episodes: int = typer.Option(4, help="Episodes in the video (tiled)."),
     video_size: int = typer.Option(128, help="Pixels per episode tile."),
     device: str = device_option(),
+    instruction: str = typer.Option(None, "--instruction", metavar="TEXT", help="Tell every episode this, in words (a "
+                                    "policy trained on instructions; unknown words are read as unknown).",
+                                    show_default="each environment's own (a task set: each member's)"),
     record: str = typer.Option(None, "--record", metavar="STORE", help="Append every rollout to this episode store "
                                "(created if absent; same task, robot and observations) as an episode: source policy, "
                                "columns run, success, outcome; curate it and train on its successes.",
@@ -73,7 +76,7 @@ def eval_(
         run=str(run), task=task_name(env) if env is not None else task, task_options=options,
         robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,
         execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
-        record=record,
+        record=record, instruction=instruction,
     )
     if shift:
         _shift_suite(config, shift, level, plot, json_out)
@@ -98,6 +101,8 @@ def eval_(
         ("mean length (steps)", f"{result['mean_length']:.1f}"),
         ("failures", failures),
         ("seeds shared with training data", result["seeds_shared_with_training_data"]),
+        *([("instruction", result["instruction"] + (f" (unknown words: {', '.join(result['unknown_words'])})"
+                                                    if result["unknown_words"] else ""))] if "instruction" in result else []),
         ("seconds", f"{result['seconds']:.1f}"),
     ]
     if "record" in result:

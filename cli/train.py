@@ -59,7 +59,7 @@ TRAIN_OPTIONS = {f.name for f in option_fields(TrainConfig)}
 DAGGER_OPTIONS = {f.name for f in option_fields(DaggerConfig)}
 # Fields demo train sets from its own arguments rather than a generated option (tests/training/test_cli_options.py
 # holds this list, the generated options and the dataclasses to each other).
-SET_BY_ARGUMENTS = {"data": "STORES", "out": "--out", "algo": "--algo", "policy": "--policy-opt", "encoder": "--encoder",
+SET_BY_ARGUMENTS = {"data": "STORES", "out": "--out", "algo": "--algo", "policy": "--policy-opt", "encoder": "--encoder", "text": "--text-opt",
                     "obs_keys": "--obs-keys", "relative_actions": "--absolute-actions", "eval_every": "--eval-every",
                     "eval_episodes": "--eval-episodes", "eval_final": "--eval-episodes", "robot": "--robot",
                     "device": "--device", "train": "STORES"}
@@ -88,6 +88,8 @@ def train(
                              "regression, Gaussian mixture or per-dimension bins over the chunk.", show_default="mse"),
     policy_opt: list[str] = typer.Option([], "--policy-opt", metavar="KEY=VALUE", help="Policy option (repeatable), e.g. hidden=512,512.",
                                          show_default="none"),
+    text_opt: list[str] = typer.Option([], "--text-opt", metavar="KEY=VALUE", help="Instruction encoder option "
+                                       "(repeatable): dim, layers, heads, dropout.", show_default="none"),
     eval_every: int = typer.Option(0, help="Roll the policy out every N steps (0 = only at the end with --eval-episodes > 0)."),
     eval_episodes: int = typer.Option(0, help="Episodes per rollout evaluation during training (0 = none)."),
     robot: Path = robot_option("Robot config TOML, where the store's recorded robot files cannot be found.", "the store's"),
@@ -136,7 +138,7 @@ def train(
         out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), obs_keys=_obs_keys(obs_keys),
         relative_actions=not absolute_actions, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, robot=str(robot) if robot else None,
-        device=device, encoder={k: v for k, v in (("backbone", encoder), ("crop", crop), ("color_jitter", color_jitter))
+        device=device, text=parse_policy_opts(text_opt, "--text-opt"), encoder={k: v for k, v in (("backbone", encoder), ("crop", crop), ("color_jitter", color_jitter))
                                 if v is not None},
     )
     how = dict(resume=resume, overwrite=overwrite, command=invocation())

@@ -76,11 +76,12 @@ def checked_action(expert: str, action: Any, shape: tuple[int, ...]) -> np.ndarr
     return a
 
 
-def foreign_episode(env: ForeignEnv, expert: str, seed: int, noise: float = 0.0
+def foreign_episode(env: ForeignEnv, expert: str, seed: int, noise: float = 0.0, instruction: str | None = None
                     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """One episode of ``expert`` (a name :func:`load_expert` takes) in the foreign environment ``env``
     from ``env.reset(seed)``; ``noise``: std of Gaussian noise on every executed action dimension (DART;
-    the recorded label stays the expert's)."""
+    the recorded label stays the expert's); ``instruction``: what the episode was told (None: the
+    environment's own, if any)."""
     factory = load_expert(expert)
     rng = np.random.default_rng([seed, 1])
     env.reset(seed)
@@ -110,4 +111,7 @@ def foreign_episode(env: ForeignEnv, expert: str, seed: int, noise: float = 0.0
         "expert_mode": "",
         "first_success_step": -1 if episode.first_success_step is None else episode.first_success_step,
     }
+    told = instruction or env.instruction
+    if told:
+        info["instruction"] = told
     return episode.data, info

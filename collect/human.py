@@ -58,6 +58,7 @@ class HumanConfig:
     task_options: dict[str, Any] = field(default_factory=dict)
     cameras: tuple[tuple[str, int, int], ...] = ()
     settings: dict[str, Any] = field(default_factory=dict)  # source-specific (ik, scale, calib, ...)
+    instruction: str = ""  # what every episode was told to do (the episode table's instruction column)
 
     def collect_config(self) -> CollectConfig:
         return CollectConfig(
@@ -189,6 +190,7 @@ def episode_info(
         "first_success_step": -1 if first_success is None else int(first_success),
         "input": Path(config.input).name,
         "input_line": int(episode.line),
+        **({"instruction": config.instruction} if config.instruction else {}),
     }
 
 

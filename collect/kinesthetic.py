@@ -213,6 +213,7 @@ def collect_kinesthetic(
     robot: str | None = None,
     task_options: dict[str, Any] | None = None,
     cameras: tuple[tuple[str, int, int], ...] = (),
+    instruction: str = "",
     append: bool = False,
     overwrite: bool = False,
     progress: Progress | None = None,
@@ -223,6 +224,7 @@ def collect_kinesthetic(
     config = HumanConfig(
         task=task, source="kinesthetic", input=str(input_csv), seed=seed, operator=operator, robot=robot,
         task_options=dict(task_options or {}), cameras=tuple(cameras), settings={"lookahead_steps": 1},
+        instruction=instruction,
     )
 
     state: dict[str, ArmFK] = {}

@@ -64,6 +64,9 @@ class CollectConfig:
     expert: str | None = None
     # Domain randomisation (demo.sim.randomize): kind -> level, drawn per episode from its seed
     randomize: dict[str, int] = field(default_factory=dict)
+    # What every episode is told to do (the episode table's instruction column); None: the environment's own,
+    # if it has one (a task set's member: Meta-World's task as a sentence)
+    instruction: str | None = None
 
 
 def make_env_for(config: CollectConfig) -> Any:
@@ -105,7 +108,7 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     seed = start_seed(config, index)
     if is_foreign(config.task):  # a task set (demo.sim.foreign_set) runs episode `index` in one of its members
         member = env.select(index) if isinstance(env, ForeignEnvSet) else env
-        return foreign_episode(member, config.expert or "", seed, config.noise)
+        return foreign_episode(member, config.expert or "", seed, config.noise, config.instruction)
     rng = np.random.default_rng([seed, 1])
     profile = get_profile(config.operator)
     n_arm = len(env.robot.arm_joints)
@@ -144,6 +147,8 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
         info["operator_failure"] = operator.failure_kind
     if config.randomize:  # this episode's draws (its seed gives them again: demo.sim.randomize)
         info["randomization"] = json.dumps(env.randomized, sort_keys=True)
+    if config.instruction:
+        info["instruction"] = config.instruction
     return episode.data, info
 
 

@@ -445,6 +445,7 @@ def collect_vr(
     robot: str | None = None,
     task_options: dict[str, Any] | None = None,
     cameras: tuple[tuple[str, int, int], ...] = (),
+    instruction: str = "",
     append: bool = False,
     overwrite: bool = False,
     progress: Progress | None = None,
@@ -472,6 +473,7 @@ def collect_vr(
         task_options=dict(task_options or {}), cameras=tuple(cameras),
         settings={"calib": settings.calib, "calibration": calibration.to_json() if calibration else None,
                   "scale": settings.scale, "ik": ik, "smoothing": asdict(smoothing)},
+        instruction=instruction,
     )
     state: dict[str, Any] = {}
 

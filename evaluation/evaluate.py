@@ -58,6 +58,7 @@ from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.randomize import Randomization
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
+from demo.store.instructions import check_instruction
 from demo.store.output import open_output
 from demo.store.robot_files import same_body
 from demo.policies.actions import make_action_adapter
@@ -202,9 +203,14 @@ def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robo
     return env
 
 
-def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = None) -> PolicyActor:
+def make_actor(bundle: PolicyBundle, env: Any, execution: ExecConfig | None = None,
+               instruction: str | None = None) -> PolicyActor:
+    """The bundle's policy acting in ``env``; ``instruction``: told to every episode (an
+    instruction-conditioned policy; None: each episode's environment's own)."""
     adapter = make_action_adapter(bundle.action, env, str(bundle.path or "run"))
-    return bundle.actor(execution, adapter)
+    actor = bundle.actor(execution, adapter)
+    actor.instruction = instruction
+    return actor
 
 
 # ---------------------------------------------------------------------------------- one episode
@@ -258,9 +264,9 @@ def diverged(env: Any) -> bool:
 
 
 def iter_episodes_inline(bundle: PolicyBundle, env: Any, jobs: Sequence[tuple[int, int, bool, bool]],
-                         execution: ExecConfig | None = None) -> Iterator[EpisodeOutcome]:
+                         execution: ExecConfig | None = None, instruction: str | None = None) -> Iterator[EpisodeOutcome]:
     """Roll the policy out in this process, one ``(index, seed, record, keep)`` job after the other."""
-    actor = make_actor(bundle, env, execution)
+    actor = make_actor(bundle, env, execution, instruction)
     with single_thread():
         for index, seed, record, keep in jobs:
             yield run_episode(env, actor, index, int(seed), record=record, keep=keep)
@@ -288,14 +294,14 @@ _worker: dict[str, Any] = {}
 
 
 def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None, execution: dict[str, Any],
-                 device: str, randomize: dict[str, int] | None = None) -> None:
+                 device: str, randomize: dict[str, int] | None = None, instruction: str | None = None) -> None:
     torch.set_num_threads(1)
     bundle = load_bundle(run, device)
     env = make_eval_env(bundle, task, options, robot)
     if randomize:
         env.set_randomization(Randomization(randomize))
     _worker["env"] = env
-    _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution))
+    _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution), instruction)
 
 
 def _worker_run(job: tuple[int, int, bool, bool]) -> EpisodeOutcome:
@@ -324,7 +330,21 @@ class EvalConfig:
     device: str = "auto"  # where the policy runs (demo.policies.device); the simulation is always on the CPU
     record: str | None = None  # a store every rollout is appended to (created if absent): the flywheel
     randomize: dict[str, int] | None = None  # kind -> level (demo.sim.randomize): a distribution shift
+    # told to every episode of an instruction-conditioned policy (None: each environment's own)
+    instruction: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def check_told(bundle: PolicyBundle, instruction: str | None) -> list[str]:
+    """Refuse an instruction for a policy that follows none (one line); the instruction's words its
+    vocabulary lacks (each is read as unknown)."""
+    if instruction is None:
+        return []
+    check_instruction(instruction)
+    if bundle.tokenizer is None:
+        raise DemoError("--instruction", f"{bundle.path or 'the run'}'s policy was trained without instructions "
+                                         "and follows none")
+    return bundle.tokenizer.unknown_words(instruction)
 
 
 def execution_for(bundle: PolicyBundle, execute: int | None, ensemble: float | None,
@@ -361,6 +381,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     if config.video and is_foreign(task):
         raise DemoError("--video", "replays the simulator's recorded states; a Gymnasium environment's episodes have none")
     execution = execution_for(bundle, config.execute, config.ensemble, config.candidates)
+    unknown = check_told(bundle, config.instruction)
     env = make_eval_env(bundle, task, options, robot)  # also validates before any worker starts
     if config.randomize:
         if is_foreign(task):
@@ -378,7 +399,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
 
     def done(outcome: EpisodeOutcome) -> None:
         if store is not None and outcome.data is not None:  # this process alone writes, in episode order
-            store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy",
+            told = {"instruction": config.instruction} if config.instruction else {}
+            store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy", **told,
                                  operator="policy", run=str(run), outcome=outcome.outcome,
                                  **({"task": outcome.task} if outcome.task else {}),
                                  first_success_step=-1 if outcome.first_success_step is None else outcome.first_success_step)
@@ -394,10 +416,11 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         if config.record is not None:
             store = stack.enter_context(open_record(config.record, env, task, options, run, config.seed))
         if executor.kind == "process" and executor.workers == 1:
-            for outcome in iter_episodes_inline(bundle, env, jobs, execution):
+            for outcome in iter_episodes_inline(bundle, env, jobs, execution, config.instruction):
                 done(outcome)
         else:
-            init_args = (str(run), task, options, robot, execution.to_json(), str(device), config.randomize)
+            init_args = (str(run), task, options, robot, execution.to_json(), str(device), config.randomize,
+                         config.instruction)
             for ready in ordered_map(_worker_init, init_args, _worker_run, jobs, executor,
                                      label=lambda job: f"evaluation episode {job[0]}"):
                 for outcome in ready:
@@ -427,6 +450,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
             "seeds_shared_with_training_data": len(training_seeds & set(seeds)),
             "execution": execution.to_json(),
             **({"randomize": config.randomize} if config.randomize else {}),
+            **({"instruction": config.instruction, "unknown_words": unknown} if config.instruction else {}),
             "workers": config.workers,
             "executor": config.executor,
             "device": str(device),

@@ -10,6 +10,12 @@ For every task of the suite (``metaworld-mt10``: Meta-World's MT10, ``metaworld-
 3. evaluate on ``episodes`` episodes whose seeds are disjoint from the demonstrations'
    (``demo eval``), success by the environment's own ``info["success"]``.
 
+With ``one_policy`` the whole set is collected into one store (``demo collect --env metaworld:MT10``, each
+episode carrying its task's instruction, :func:`demo.sim.metaworld.instruction`) and *one* BC policy trains
+on all of it, told each task by its instruction (:mod:`demo.policies.instruction`); ``instructions`` off
+trains the same policy with the instructions blanked, the control that shows what the words carry. The
+evaluation runs every task of the set with its own instruction.
+
 With ``camera`` (``corner@64x64``) every task is observed from that camera plus the 4-D end-effector state
 (:class:`demo.sim.metaworld.CameraObservation`) and BC trains the image policy ``demo train`` picks for such
 a store.
@@ -55,12 +61,20 @@ class SuiteConfig:
     camera: str | None = setting(None, "Observe each task from this camera (NAME@WxH, e.g. corner@64x64) plus the 4-D "
                                        "end-effector state, instead of the 39-D state.", metavar="NAME@WxH",
                                  unset="the state")
+    one_policy: bool = setting(False, "One policy for every task of the suite, told each task by its instruction (the "
+                                      "whole set collected into one store), instead of one policy per task.")
+    instructions: bool = setting(True, "--one-policy: condition the policy on the instructions (--no-instructions: the "
+                                       "blanked control).")
 
     def check(self) -> None:
         if self.suite not in SUITES:
             raise DemoError("SUITE", f"unknown suite {self.suite!r} (choose from {', '.join(SUITES)})")
         if self.demos < 2 or self.episodes < 1:
             raise DemoError("--demos", "needs at least 2 demonstrations and 1 evaluation episode per task")
+        if self.one_policy and self.tasks:
+            raise DemoError("--tasks", "--one-policy trains on the whole suite: leave out --tasks")
+        if not self.instructions and not self.one_policy:
+            raise DemoError("--no-instructions", "blanks the instructions of --one-policy: give --one-policy")
 
 
 def task_list(c: SuiteConfig) -> list[str]:
@@ -116,19 +130,71 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
     return out
 
 
+def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]:
+    """Collect the whole set into one store, train one policy on it (told each task by its instruction unless
+    ``instructions`` is off), evaluate it on every task: ``tasks``, per-task rows as :func:`run_task` gives
+    them, with the training summary and times (reused when its result is there for the same configuration)."""
+    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.store import EpisodeStore
+
+    adapter, name = SUITES[c.suite]
+    folder = Path(c.out) / ("one-policy" if c.instructions else "one-policy-blank")
+    done = folder / "result.json"
+    key = {k: v for k, v in asdict(c).items() if k not in ("out", "tasks", "workers")}
+    if done.is_file():
+        previous = json.loads(done.read_text())
+        if previous.get("configuration") == key:
+            return previous
+    folder.mkdir(parents=True, exist_ok=True)
+    options = {} if c.camera is None else {"camera": c.camera}
+    t0 = time.perf_counter()
+    log(f"{name}: collect {c.demos} per task")
+    collect_scripted(CollectConfig(task=task_name(f"{adapter}:{name}"), episodes=c.demos, seed=c.seed, expert=adapter,
+                                   task_options=options), folder / "demos.zarr", workers=c.workers, overwrite=True)
+    t1 = time.perf_counter()
+    log(f"{name}: train one BC policy" + (" on the instructions" if c.instructions else " without instructions"))
+    given: dict[str, Any] = {"steps": c.steps, "chunk": c.chunk, "ensemble": c.chunk > 1, "instructions": c.instructions}
+    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
+                                               seed=c.seed, **given), overwrite=True)
+    t2 = time.perf_counter()
+    log(f"{name}: evaluate {c.episodes} per task")
+    result = evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers))
+    t3 = time.perf_counter()
+    with EpisodeStore.open(folder / "demos.zarr") as store:
+        member, success = store.column("task").tolist(), store.column("success").astype(bool)
+    rows = []
+    for task, bc in result["per_task"].items():
+        mine = [ok for t, ok in zip(member, success) if t == task]
+        rows.append({
+            "task": task.removeprefix("env:").partition(":")[2],
+            "expert": {"successes": int(sum(mine)), "episodes": len(mine), "success_rate": sum(mine) / max(1, len(mine))},
+            "bc": {k: bc[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+            "seeds_shared_with_training_data": result["seeds_shared_with_training_data"],
+        })
+    record = {"tasks": rows, "train": {k: train[k] for k in ("step", "train_loss", "val_loss", "train_episodes")},
+              "seconds": {"collect": t1 - t0, "train": t2 - t1, "eval": t3 - t2}, "configuration": key}
+    done.write_text(json.dumps(record, indent=1) + "\n")
+    return record
+
+
 def run(c: SuiteConfig, log: Callable[[str], None] = lambda text: None) -> dict[str, Any]:
     """Every task of the suite (module docstring); the JSON-able result, with the figure written to ``out``."""
     c.check()
     tasks = task_list(c)
-    rows = [run_task(c, task, log) for task in tasks]
+    one = run_one_policy(c, log) if c.one_policy else None
+    rows = one["tasks"] if one else [run_task(c, task, log) for task in tasks]
     mean = sum(r["bc"]["success_rate"] for r in rows) / len(rows)
     expert = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
     seen = "state" if c.camera is None else f"{c.camera} camera + EE state"
-    figure = plot(rows, Path(c.out) / f"{c.suite}.png", title=f"{c.suite}: BC per task from {seen} ({c.demos} demos, "
-                                                              f"{c.episodes} eval episodes)")
+    what = "BC per task" if not c.one_policy else "one BC policy" + (" + instruction" if c.instructions else
+                                                                     ", instructions blanked")
+    name = c.suite + ("" if not c.one_policy else "-one-policy" if c.instructions else "-one-policy-blank")
+    figure = plot(rows, Path(c.out) / f"{name}.png", title=f"{c.suite}: {what} from {seen} ({c.demos} demos, "
+                                                           f"{c.episodes} eval episodes per task)")
     return {"bench": "suite", "suite": c.suite, "tasks": rows, "average_bc": mean, "average_expert": expert,
             "worst": [r["task"] for r in sorted(rows, key=lambda r: r["bc"]["success_rate"])[:5]],
-            "target": TARGET, "meets_target": mean >= TARGET, "figure": str(figure), "configuration": asdict(c)}
+            "target": TARGET, "meets_target": mean >= TARGET, "figure": str(figure), "configuration": asdict(c),
+            **({"one_policy": {k: one[k] for k in ("train", "seconds")}} if one else {})}
 
 
 def plot(rows: list[dict[str, Any]], path: Path, title: str) -> Path:

@@ -18,6 +18,10 @@ as it was trained:
   normalised action units). A multimodal policy then stays on the mode it chose, so ensembling
   averages chunks of one mode instead of two. The first query of an episode keeps the first draw.
 
+An instruction-conditioned policy (:mod:`demo.policies.instruction`) is told its episode's
+instruction at :meth:`PolicyActor.reset`: the one set on the actor (``demo eval --instruction``), else
+the environment's own (``env.instruction``: a task set's member's, e.g. Meta-World's task as a sentence).
+
 Actions leave in the policy's action representation and go through an action adapter
 (:mod:`demo.policies.actions`) to become what the environment takes.
 """
@@ -31,7 +35,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from demo.errors import DemoError
 from demo.policies.actions import ActionAdapter
+from demo.policies.instruction import INSTRUCTION, InstructionTokenizer
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import Policy
@@ -85,6 +91,7 @@ class PolicyActor:
         execution: ExecConfig,
         adapter: ActionAdapter | None = None,
         relative: RelativeActions | None = None,
+        tokenizer: InstructionTokenizer | None = None,
     ):
         execution.check(policy.spec.horizon)
         self.policy = policy.eval()
@@ -92,6 +99,9 @@ class PolicyActor:
         self.execution = execution
         self.adapter = adapter
         self.relative = relative
+        self.tokenizer = tokenizer
+        self.instruction: str | None = None  # told to every episode (else the environment's own)
+        self.tokens: np.ndarray | None = None  # [1, max_tokens] of the episode's instruction
         self.n_obs, self.horizon = policy.spec.n_obs, policy.spec.horizon
         self.device = next(policy.parameters(), torch.empty(0)).device
         self.generator = torch.Generator(device=self.device)
@@ -102,6 +112,12 @@ class PolicyActor:
         """Start an episode: clear history and chunks, seed the policy's sampling from ``seed``."""
         if self.adapter is not None and env is not None:
             self.adapter.reset(env)
+        if self.tokenizer is not None:
+            text = self.instruction or getattr(env, "instruction", None) or ""
+            if env is not None and not text:
+                raise DemoError("--instruction", "the policy follows instructions and this environment gives none: "
+                                                 "tell it one")
+            self.tokens = self.tokenizer.encode([text])
         self.history: deque[np.ndarray] = deque(maxlen=self.n_obs)
         self.images: dict[str, deque[np.ndarray]] = {k: deque(maxlen=self.n_obs) for k in self.obs_spec.images}
         self.chunks: deque[tuple[int, np.ndarray]] = deque()  # (first step, [H, A] raw actions)
@@ -113,9 +129,11 @@ class PolicyActor:
         k = self.execution.candidates
         state = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
         obs: torch.Tensor | dict[str, torch.Tensor] = torch.from_numpy(np.repeat(state, k, axis=0)).to(self.device)
-        if self.images:
+        if self.images or self.tokens is not None:
             obs = {STATE: obs, **{key: torch.from_numpy(np.repeat(np.stack(h)[None], k, axis=0)).to(self.device)
                                   for key, h in self.images.items()}}
+        if self.tokens is not None:
+            obs[INSTRUCTION] = torch.from_numpy(np.repeat(self.tokens, k, axis=0)).to(self.device)
         with torch.inference_mode():
             chunks = self.action_norm.unnormalize(self.policy.predict(obs, generator=self.generator).float().cpu().numpy())
         self.queries += 1

@@ -43,6 +43,7 @@ from demo.sim.robot_record import resolve_robot, robot_record
 from demo.store import ActionSpec
 from demo.store.robot_files import copy_robot_files, file_table, same_robot
 from demo.policies.actor import ExecConfig, PolicyActor
+from demo.policies.instruction import InstructionTokenizer, text_record
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.policy import Policy, PolicySpec, build_policy, config_to_json, policy_config
@@ -73,6 +74,7 @@ class PolicyBundle:
     run: dict[str, Any]  # the whole run.json (task, robot, data, training config, ...)
     path: Path | None = None
     relative: RelativeActions | None = None
+    tokenizer: InstructionTokenizer | None = None  # an instruction-conditioned policy's (demo.policies.instruction)
 
     @property
     def task(self) -> dict[str, Any]:
@@ -84,19 +86,20 @@ class PolicyBundle:
 
     def actor(self, execution: ExecConfig | None = None, adapter: Any = None) -> PolicyActor:
         return PolicyActor(self.policy, self.obs_spec, self.obs_norm, self.action_norm, execution or self.execution,
-                           adapter, self.relative)
+                           adapter, self.relative, self.tokenizer)
 
 
 def policy_record(
     algo: str, policy: Policy, obs_spec: ObsSpec, action: ActionSpec, execution: ExecConfig,
-    relative: RelativeActions | None = None,
+    relative: RelativeActions | None = None, tokenizer: InstructionTokenizer | None = None,
 ) -> dict[str, Any]:
     """The part of run.json that rebuilds the policy."""
-    encoder = encoder_record(policy)
+    encoder, text = encoder_record(getattr(policy, "inner", policy)), text_record(policy)
     return {
         "algo": algo,
         "config": config_to_json(policy.config),
         **({"encoder": encoder} if encoder else {}),
+        **({"text": text, "instruction": tokenizer.to_json()} if text and tokenizer is not None else {}),
         "spec": policy.spec.to_json(),
         "obs": obs_spec.to_json(),
         "action": action.to_json(),
@@ -294,27 +297,28 @@ def _policy_parts(run: dict[str, Any], where: str | Path) -> tuple[Any, ...]:
         action = ActionSpec.from_json(rec["action"])
         execution = ExecConfig.from_json(rec.get("execution") or {})
         config = policy_config(rec["algo"], rec.get("config") or {})
-        encoder = rec.get("encoder")
+        encoder, text = rec.get("encoder"), rec.get("text")
         relative = RelativeActions.from_json(rec.get("relative_actions"))
-        _check_record(obs_spec, spec, action, relative, execution)
+        tokenizer = InstructionTokenizer.from_json(rec["instruction"]) if spec.vocab else None
+        _check_record(obs_spec, spec, action, relative, execution, tokenizer)
         with torch.device("meta"):  # shapes only: a record naming a huge network allocates nothing here
-            shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config, encoder).state_dict().items()}
+            shapes = {k: tuple(v.shape) for k, v in build_policy(rec["algo"], spec, config, encoder, text).state_dict().items()}
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError, RuntimeError) as exc:
         raise DemoError(where, f"malformed policy record ({exc})") from None
-    return rec["algo"], spec, obs_spec, action, execution, config, encoder, relative, shapes
+    return rec["algo"], spec, obs_spec, action, execution, config, (encoder, text, tokenizer), relative, shapes
 
 
 def _assemble(run: dict[str, Any], parts: tuple[Any, ...], tensors: dict[str, torch.Tensor], device: torch.device | str,
               path: str | Path, run_dir: Path | None) -> PolicyBundle:
     """The bundle of parsed record ``parts`` with the weights and normalisers in ``tensors`` (from ``path``)."""
-    algo, spec, obs_spec, action, execution, config, encoder, relative, shapes = parts
+    algo, spec, obs_spec, action, execution, config, (encoder, text, tokenizer), relative, shapes = parts
     weights = {k[len("policy."):]: v for k, v in tensors.items() if k.startswith("policy.")}
     stored = {k: tuple(v.shape) for k, v in weights.items()}
     if stored != shapes:
         differ = sorted(k for k in shapes.keys() | stored.keys() if shapes.get(k) != stored.get(k))
         raise DemoError(path, f"does not match the policy in {RUN_FILE} (tensor {differ[0]}: "
                               f"{stored.get(differ[0])} in the file, {shapes.get(differ[0])} in the record)")
-    policy = build_policy(algo, spec, config, encoder)
+    policy = build_policy(algo, spec, config, encoder, text)
     try:
         policy.load_state_dict(weights, strict=True)
         obs_norm = MinMaxNormalizer.from_state_dict(tensors, "normalizer.obs")
@@ -324,12 +328,15 @@ def _assemble(run: dict[str, Any], parts: tuple[Any, ...], tensors: dict[str, to
     if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
         raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
     policy.to(device).eval()
-    return PolicyBundle(algo, policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative)
+    return PolicyBundle(algo, policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative, tokenizer)
 
 
 def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: RelativeActions | None,
-                  execution: ExecConfig) -> None:
+                  execution: ExecConfig, tokenizer: InstructionTokenizer | None = None) -> None:
     """The parts of a policy record must agree (ValueError otherwise): a run directory is untrusted."""
+    if tokenizer is not None and (tokenizer.vocab_size, tokenizer.max_tokens) != (spec.vocab, spec.max_tokens):
+        raise ValueError(f"the instruction tokenizer ({tokenizer.vocab_size} words, {tokenizer.max_tokens} tokens) does "
+                         f"not match the policy's spec ({spec.vocab}, {spec.max_tokens})")
     if not all(isinstance(k, str) for k in obs.keys) or len(obs.dims) != len(obs.keys) or min(obs.dims, default=0) < 0:
         raise ValueError("observation keys and dims do not pair up")
     if obs.dim != spec.obs_dim or action.dim != spec.action_dim or min(spec.n_obs, spec.horizon) < 1:

@@ -45,11 +45,17 @@ class PolicySpec:
     # Camera images the policy reads besides the vector: (key, height, width), uint8 RGB. A policy
     # with images is the registered one behind image encoders (demo.policies.visuomotor).
     images: tuple[tuple[str, int, int], ...] = ()
+    # An instruction-conditioned policy (demo.policies.instruction): its vocabulary's size and the token
+    # ids per instruction; 0 = none.
+    vocab: int = 0
+    max_tokens: int = 0
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items() if k != "images"}
         if self.images:  # recorded only when set: state runs read as before
             d["images"] = [list(i) for i in self.images]
+        if not self.vocab:
+            del d["vocab"], d["max_tokens"]
         return d
 
     @classmethod
@@ -138,12 +144,18 @@ def policy_config(name: str, options: dict[str, Any] | None = None) -> Any:
         raise DemoError("--policy-opt", str(exc)) from None
 
 
-def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any = None) -> Policy:
+def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any = None, text: Any = None) -> Policy:
     """Policy ``name`` for ``spec``; with camera images in ``spec``, behind image encoders configured
-    by ``encoder`` (an :class:`demo.policies.encoders.EncoderConfig`, a dict of its fields, or None)."""
+    by ``encoder`` (an :class:`demo.policies.encoders.EncoderConfig`, a dict of its fields, or None);
+    with a vocabulary in ``spec``, conditioned on instructions by a text encoder configured by ``text``
+    (a :class:`demo.policies.instruction.TextConfig`, a dict of its fields, or None)."""
     cls = policy_class(name)
     if config is None or isinstance(config, dict):
         config = policy_config(name, config)
+    if spec.vocab:
+        from demo.policies.instruction import InstructedPolicy, text_config  # deferred: cycle (it imports this module)
+
+        return InstructedPolicy(spec, config, text_config(text), lambda inner: build_policy(name, inner, config, encoder))
     if spec.images:
         from demo.policies.visuomotor import VisuomotorPolicy, encoder_config  # deferred: cycle (visuomotor imports this module)
 

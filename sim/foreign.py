@@ -102,6 +102,20 @@ def make_gym(name: str, options: dict[str, Any]) -> gymnasium.Env:
         raise DemoError(where, f"cannot be made with {options}: {exc}") from None
 
 
+def instruction_of(name: str, env: gymnasium.Env) -> str:
+    """What the environment asks for in words: its own ``instruction`` attribute (a user's environment),
+    else its adapter's ``instruction(TASK)`` (Meta-World's task as a sentence); "" when neither says."""
+    own = getattr(env.unwrapped, "instruction", None)
+    if isinstance(own, str) and own.strip():
+        return " ".join(own.split())
+    module, _, task = name.removeprefix(ENV_PREFIX).rpartition(":")
+    if module in ADAPTERS:
+        described = getattr(importlib.import_module(ADAPTERS[module].partition(":")[0]), "instruction", None)
+        if callable(described):
+            return str(described(task))
+    return ""
+
+
 def flatten_space(space: gymnasium.Space, where: str) -> dict[str, tuple[str, gymnasium.spaces.Box]]:
     """Feature name -> (path in the observation, Box) for every leaf of an observation space."""
     out: dict[str, tuple[str, gymnasium.spaces.Box]] = {}
@@ -242,6 +256,11 @@ class ForeignEnv:
     @property
     def steps(self) -> int:
         return self._steps
+
+    @property
+    def instruction(self) -> str:
+        """What the environment asks for now, in words (it may change at each reset; :func:`instruction_of`)."""
+        return instruction_of(self.name, self.gym)
 
     def success(self) -> bool:
         return self._success

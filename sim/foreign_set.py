@@ -100,6 +100,10 @@ class ForeignEnvSet:
     def task(self) -> Any:
         return self.active.task
 
+    @property
+    def instruction(self) -> str:
+        return self.active.instruction
+
     def close(self) -> None:
         for env in self._members.values():
             env.close()

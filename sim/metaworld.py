@@ -85,6 +85,42 @@ def task_set(name: str) -> list[str]:
     return [name]
 
 
+# Each task as an instruction (demo.policies.instruction): what its success asks for, in words (Meta-World's
+# task descriptions, shortened). A task without an entry reads as its name.
+INSTRUCTIONS: dict[str, str] = {
+    "assembly": "put the ring on the peg", "basketball": "dunk the ball into the basket",
+    "bin-picking": "move the cube from one bin to the other", "box-close": "put the lid on the box",
+    "button-press-topdown": "press the button from the top", "button-press-topdown-wall": "press the button behind the wall from the top",
+    "button-press": "press the button", "button-press-wall": "press the button behind the wall",
+    "coffee-button": "press the button of the coffee machine", "coffee-pull": "pull the mug from the coffee machine",
+    "coffee-push": "push the mug under the coffee machine", "dial-turn": "turn the dial",
+    "disassemble": "pick the ring off the peg", "door-close": "close the door", "door-lock": "lock the door",
+    "door-open": "open the door", "door-unlock": "unlock the door", "hand-insert": "put the hand into the hole",
+    "drawer-close": "close the drawer", "drawer-open": "open the drawer", "faucet-open": "turn the faucet on",
+    "faucet-close": "turn the faucet off", "hammer": "hammer the nail into the wall",
+    "handle-press-side": "press the handle down from the side", "handle-press": "press the handle down",
+    "handle-pull-side": "pull the handle up from the side", "handle-pull": "pull the handle up",
+    "lever-pull": "pull the lever up", "pick-place-wall": "pick the puck and place it at the goal behind the wall",
+    "pick-out-of-hole": "pick the peg out of the hole", "pick-place": "pick the puck and place it at the goal",
+    "plate-slide": "slide the plate into the cabinet", "plate-slide-side": "slide the plate into the cabinet from the side",
+    "plate-slide-back": "slide the plate out of the cabinet",
+    "plate-slide-back-side": "slide the plate out of the cabinet to the side",
+    "peg-insert-side": "insert the peg into the hole from the side", "peg-unplug-side": "unplug the peg to the side",
+    "soccer": "kick the ball into the goal", "stick-push": "push the bottle with the stick",
+    "stick-pull": "pull the bottle with the stick", "push": "push the puck to the goal",
+    "push-wall": "push the puck to the goal behind the wall", "push-back": "push the puck back to the goal",
+    "reach": "reach the goal", "reach-wall": "reach the goal behind the wall", "shelf-place": "put the block on the shelf",
+    "sweep-into": "sweep the puck into the hole", "sweep": "sweep the puck off the table",
+    "window-open": "slide the window open", "window-close": "slide the window closed",
+}
+
+
+def instruction(task: str) -> str:
+    """The task (``pick-place-v3``) as an instruction (``pick the puck and place it at the goal``)."""
+    name = task.rsplit("-v", 1)[0] if task.rsplit("-v", 1)[-1].isdigit() else task
+    return INSTRUCTIONS.get(name, name.replace("-", " "))
+
+
 def make(task: str, seed: int = BENCHMARK_SEED, camera: str | None = None, **options: Any) -> gymnasium.Env:
     """The Meta-World task ``task`` (e.g. ``pick-place-v3``) as the benchmark builds it (module docstring);
     ``camera`` (``NAME@WxH``): observed from that camera and the 4-D end-effector state instead."""

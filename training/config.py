@@ -138,6 +138,8 @@ class TrainConfig:
     policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
     # Image encoders, for stores with cameras (demo.policies.encoders.EncoderConfig fields, e.g. {"backbone": "resnet18"})
     encoder: dict[str, Any] = field(default_factory=dict)
+    # The instruction encoder (demo.policies.instruction.TextConfig fields, e.g. {"dim": 128}; set by --text-opt)
+    text: dict[str, Any] = field(default_factory=dict)
     seed: int = setting(0, "Seed of initialisation, batches, split and rollouts.")
     # ---- tuned per policy (None until resolved; the defaults shown are POLICY_DEFAULTS')
     steps: int | None = setting(None, "Optimiser steps (DAgger: round 0).", resume=False)
@@ -161,6 +163,9 @@ class TrainConfig:
                                    resume=False)
     # default: low-dim obs.* keys except velocities (demo.policies.observation); ("all",) = all; set by --obs-keys
     obs_keys: tuple[str, ...] = ()
+    instructions: bool | None = setting(None, "Condition the policy on each episode's instruction (the stores' "
+                                              "instruction column; demo.policies.instruction).",
+                                        unset="when the training episodes hold more than one")
     obs_noise: float = setting(0.0, "Std of Gaussian noise on normalised observations during training.")
     # predict joint targets relative to the current joint positions (demo.policies.relative); --absolute-actions: False
     relative_actions: bool = True
@@ -227,8 +232,9 @@ class TrainConfig:
         if not isinstance(self.data, str):
             d["data"] = list(self.data)
         d["policy"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.policy.items()}
-        if not self.encoder:  # recorded only when set: state runs read as before
-            d.pop("encoder")
+        for key in ("encoder", "text"):
+            if not d[key]:  # recorded only when set: runs without it read as before
+                d.pop(key)
         return d
 
 

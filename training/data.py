@@ -38,7 +38,9 @@ import torch
 
 from demo.errors import DemoError
 from demo.store import EpisodeStore, WindowSampler
+from demo.store.instructions import episode_instructions
 from demo.training.config import TrainConfig
+from demo.policies.instruction import INSTRUCTION, InstructionTokenizer
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import PolicySpec
@@ -52,7 +54,8 @@ VALIDATION_WINDOWS_IMAGES = 512  # with cameras: a validation pass stays a few s
 MIN_TRAIN_EPISODES = 2  # below this a policy sees one trajectory: refused, not trained silently
 
 _UNIT = MinMaxNormalizer.from_limits(np.full(1, -1.0, np.float32), np.ones(1, np.float32))  # placeholder until fitted
-Observation = torch.Tensor | dict[str, torch.Tensor]  # [B, n_obs, D], or {"state": that, camera key: uint8 [B, n_obs, H, W, 3]}
+# [B, n_obs, D], or {"state": that, camera key: uint8 [B, n_obs, H, W, 3], "instruction": int64 [B, max_tokens]}
+Observation = torch.Tensor | dict[str, torch.Tensor]
 Batch = tuple[Observation, torch.Tensor, torch.Tensor]  # obs, action [B, H, A], action_pad [B, H]
 # Observations every arm reports in the same frame and units (scene frame, m, closedness): a union of
 # arms with different joints trains on these (with the object's offset from the EE, see ObsSpec).
@@ -85,6 +88,24 @@ def batch_to(batch: Batch, device: torch.device) -> Batch:
     return moved, action.to(device, non_blocking=True), pad.to(device, non_blocking=True)
 
 
+@dataclass(frozen=True)
+class Instructions:
+    """Every frame's instruction as token ids: ``tokens[of_frame[i]]`` is frame ``i``'s ``[max_tokens]``."""
+
+    tokenizer: InstructionTokenizer  # trained on the training episodes' instructions
+    texts: tuple[str, ...]  # the distinct instructions ("" for an episode without one)
+    tokens: np.ndarray  # [len(texts), max_tokens] int64
+    of_frame: np.ndarray  # [N] index into texts
+
+    @classmethod
+    def of(cls, tokenizer: InstructionTokenizer, per_episode: Sequence[str], ends: np.ndarray) -> "Instructions":
+        texts = tuple(sorted(set(per_episode)))
+        index = {text: k for k, text in enumerate(texts)}
+        lengths = np.diff(np.concatenate([[0], ends]))
+        of_frame = np.repeat(np.array([index[t] for t in per_episode], np.int64), lengths)
+        return cls(tokenizer, texts, tokenizer.encode(texts), of_frame)
+
+
 @dataclass
 class TrainingData:
     """A store's frames in memory with their split, normalisers and the shapes of the policy.
@@ -108,6 +129,7 @@ class TrainingData:
     images: dict[str, np.ndarray] = field(default_factory=dict)  # camera key -> [N, H, W, 3] uint8; none = state only
     sources: tuple[Source, ...] = ()  # the stores, in concatenation order (one unless a union)
     chunks: np.ndarray | None = None  # [N, H, A] raw chunk labels (CHUNK_KEY), all NaN on a frame without one
+    instructions: Instructions | None = None  # the episodes' instructions, for an instruction-conditioned policy
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -126,9 +148,12 @@ class TrainingData:
     def reload(self, store: EpisodeStore, train_episodes: np.ndarray, val_episodes: np.ndarray) -> "TrainingData":
         """The store's frames now (it may have grown) with another split and *these* normalisers."""
         raw = _load_arrays(store, self.obs_spec, self.relative)
+        instructions = None
+        if self.instructions is not None:  # the same vocabulary: new words are unknown to it
+            instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3])
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
                        ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
-                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6])
+                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions)
 
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
@@ -236,10 +261,29 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     obs_norm = MinMaxNormalizer.fit(obs[frames])
     cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
     spec = PolicySpec(obs_spec.dim, stores[0].meta.action.dim, config.n_obs, config.chunk, cameras)
+    instructions = _instructions(config, stores, sources, ends, train_eps)
+    if instructions is not None:
+        spec = replace(spec, vocab=instructions.tokenizer.vocab_size, max_tokens=instructions.tokenizer.max_tokens)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
-                        obs_norm, _UNIT, relative, spec, images, sources, chunks)
+                        obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions)
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
+
+
+def _instructions(config: TrainConfig, stores: Sequence[EpisodeStore], sources: Sequence[Source], ends: np.ndarray,
+                  train_eps: np.ndarray) -> Instructions | None:
+    """The episodes' instructions when the policy is conditioned on them: ``config.instructions``, or
+    (None) when the training episodes hold more than one; every training episode must then have one."""
+    texts = episode_instructions(stores)
+    trained = sorted({texts[i] for i in train_eps})
+    if config.instructions is False or (config.instructions is None and len(set(trained) - {""}) < 2):
+        return None
+    if "" in trained:
+        i = next(int(i) for i in train_eps if not texts[i])
+        source = next(s for s in sources if s.first_episode <= i < s.first_episode + s.episodes)
+        raise DemoError(source.path, f"episode {i - source.first_episode} has no instruction, and the policy follows "
+                                     "instructions: collect with --instruction, or train with --no-instructions")
+    return Instructions.of(InstructionTokenizer.train(trained), texts, ends)
 
 
 def _join(arrays: list[np.ndarray]) -> np.ndarray:
@@ -348,6 +392,7 @@ class Windows:
         self.norm = data.action_norm if normalize else None
         self.chunks = data.chunks
         self.has_chunk = None if data.chunks is None else np.isfinite(data.chunks[:, 0, 0])
+        self.instructions = data.instructions
 
     def __len__(self) -> int:
         return len(self.sampler)
@@ -380,8 +425,10 @@ class Windows:
         action, pad = self._targets(b.index, b.action, b.action_pad)
         action = self.norm.normalize(action) if self.norm is not None else action
         obs: Observation = torch.from_numpy(b.obs["obs"])
-        if self.cameras:
+        if self.cameras or self.instructions is not None:
             obs = {STATE: obs, **{k: torch.from_numpy(b.obs[k]) for k in self.cameras}}
+        if self.instructions is not None:  # the query frame's (an episode's frames share one)
+            obs[INSTRUCTION] = torch.from_numpy(self.instructions.tokens[self.instructions.of_frame[b.index]])
         return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:

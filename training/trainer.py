@@ -46,6 +46,7 @@ from demo.errors import DemoError
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
 from demo.policies.device import resolve_device
+from demo.policies.instruction import text_config
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.policy import build_policy, policy_config
 from demo.policies.visuomotor import encoder_config
@@ -78,6 +79,10 @@ class TrainingRun(Run):
             encoder_config(config.encoder)
         except (TypeError, ValueError) as exc:
             raise DemoError("--encoder", str(exc)) from None
+        try:
+            text_config(config.text)
+        except (TypeError, ValueError) as exc:
+            raise DemoError("--text-opt", str(exc)) from None
         # Under torchrun: this rank's group and device (demo.training.distributed); None in one process.
         group, self.device = distributed.init_from_env(resolve_device(config.device))
         monitored = config.eval_every or config.eval_final
@@ -100,7 +105,7 @@ class TrainingRun(Run):
         if seed is not None:
             torch.manual_seed(seed)
         policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy),
-                              self.config.encoder)
+                              self.config.encoder, self.config.text)
         policy.fit_actions(*chunk_action_limits(data))
         return make_learner(policy, self.config, step, phase_steps, self.device)
 
@@ -293,7 +298,8 @@ def run_record(config: TrainConfig, meta: StoreMeta, data: TrainingData, learner
         "algo": (algo_record or {}).get("name", config.algo),
         "created": ckpt.now(),
         "command": command,
-        "policy": ckpt.policy_record(config.algo, learner.policy, data.obs_spec, meta.action, execution, data.relative),
+        "policy": ckpt.policy_record(config.algo, learner.policy, data.obs_spec, meta.action, execution, data.relative,
+                                     data.instructions.tokenizer if data.instructions is not None else None),
         "task": meta.task,
         "robot": meta.robot,
         "fps": meta.fps,

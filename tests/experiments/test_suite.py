@@ -78,3 +78,22 @@ def test_suite_from_the_corner_camera_in_miniature(tmp_path: Path, one_line_erro
         assert image.std() > 10  # a rendered scene, not a blank frame
     one_line_error(["collect", "--env", "metaworld:reach-v3", "--env-opt", "camera=nowhere@32x32", "--expert",
                     "metaworld", "--episodes", "1", "--out", str(tmp_path / "x.zarr")], "no camera 'nowhere'")
+
+
+@pytest.mark.slow  # ~40 s: the whole set collected, one instruction-conditioned policy trained and evaluated
+def test_one_policy_for_the_whole_suite_in_miniature(tmp_path: Path, one_line_error) -> None:
+    out = tmp_path / "suite.json"
+    assert main(["bench", "suite", "metaworld-mt10", "--one-policy", "--demos", "2", "--episodes", "1", "--steps", "30",
+                 "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert len(result["tasks"]) == 10 and all(r["bc"]["episodes"] == 1 and r["expert"]["episodes"] == 2
+                                              for r in result["tasks"])
+    assert result["tasks"][0]["task"] == "reach-v3" and result["one_policy"]["seconds"]["train"] > 0
+    with EpisodeStore.open(tmp_path / "runs" / "one-policy" / "demos.zarr") as store:
+        told = store.column("instruction").tolist()
+        assert told[:2] == ["reach the goal", "push the puck to the goal"] and len(set(told)) == 10
+    run = json.loads((tmp_path / "runs" / "one-policy" / "bc" / "run.json").read_text())
+    assert run["policy"]["spec"]["vocab"] > 10 and "instruction" in run["policy"]
+    one_line_error(["bench", "suite", "metaworld-mt10", "--one-policy", "--tasks", "reach-v3"], "--tasks",
+                   "whole suite")
+    one_line_error(["bench", "suite", "metaworld-mt10", "--no-instructions"], "--one-policy")

@@ -1,0 +1,179 @@
+"""Instruction-conditioned policies: one policy for many tasks, told what to do in words.
+
+An episode's instruction (the store's ``instruction`` column, :mod:`demo.store.instructions`) reaches the policy as token ids, and every
+piece here is trained from scratch on this machine (nothing is downloaded):
+
+- :class:`InstructionTokenizer`: a word-level vocabulary (HuggingFace ``tokenizers``' ``WordLevel``,
+  lower-cased, accents stripped, split on whitespace and punctuation) trained on the training
+  instructions; a word it never saw becomes ``[UNK]``, never an index error. It is saved as JSON in
+  the run record (``tokenizers`` parses it in Rust: no pickle, nothing executed).
+- :class:`TextEncoder`: token embeddings and learned positions, a small pre-norm transformer encoder,
+  and the mean over the instruction's tokens (padding masked): one vector per instruction.
+- :class:`InstructedPolicy`: any policy (BC's MLP, diffusion, ACT, a visuomotor policy) with the
+  instruction's vector appended to the low-dim observation of every history frame, trained end to end
+  on the wrapped policy's own loss (the conditioning of multi-task BC with a learned task embedding;
+  with a single instruction it is a constant and changes nothing).
+
+Observations reach it as a dict: the wrapped policy's observation (the low-dim vector, or the
+visuomotor dict) plus :data:`INSTRUCTION` -> ``[B, max_tokens]`` int64 token ids (0-padded).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from demo.policies.observation import STATE
+from demo.policies.policy import Policy, PolicySpec
+
+INSTRUCTION = "instruction"  # the token ids' entry in an observation dict
+PAD, UNKNOWN = "[PAD]", "[UNK]"  # token ids 0 and 1
+
+
+class InstructionTokenizer:
+    """Words to token ids with a vocabulary trained on the training instructions (module docstring)."""
+
+    def __init__(self, tokenizer: Any, max_tokens: int):
+        self.tokenizer = tokenizer
+        self.max_tokens = int(max_tokens)
+
+    @classmethod
+    def train(cls, instructions: Sequence[str]) -> "InstructionTokenizer":
+        """A vocabulary of every word of ``instructions``; ``max_tokens`` the longest one's length."""
+        from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, trainers  # deferred: training only
+
+        tokenizer = Tokenizer(models.WordLevel(unk_token=UNKNOWN))
+        tokenizer.normalizer = normalizers.Sequence([normalizers.NFD(), normalizers.Lowercase(), normalizers.StripAccents()])
+        tokenizer.pre_tokenizer = pre_tokenizers.Whitespace()
+        tokenizer.train_from_iterator(list(instructions), trainers.WordLevelTrainer(special_tokens=[PAD, UNKNOWN]))
+        longest = max((len(tokenizer.encode(text).ids) for text in instructions), default=1)
+        return cls(tokenizer, max(1, longest))
+
+    @property
+    def vocab_size(self) -> int:
+        return int(self.tokenizer.get_vocab_size())
+
+    def encode(self, texts: Sequence[str]) -> np.ndarray:
+        """``[len(texts), max_tokens]`` int64 ids, 0-padded; words past ``max_tokens`` are cut (an
+        instruction longer than any trained on)."""
+        out = np.zeros((len(texts), self.max_tokens), np.int64)
+        for row, text in enumerate(texts):
+            ids = self.tokenizer.encode(str(text)).ids[: self.max_tokens]
+            out[row, : len(ids)] = ids
+        return out
+
+    def unknown_words(self, text: str) -> list[str]:
+        """The words of ``text`` outside the vocabulary (each becomes ``[UNK]``)."""
+        text = str(text)
+        encoding = self.tokenizer.encode(text)
+        return [text[start:stop] for (start, stop), i in zip(encoding.offsets, encoding.ids) if i == 1]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"tokenizer": json.loads(self.tokenizer.to_str()), "max_tokens": self.max_tokens}
+
+    @classmethod
+    def from_json(cls, record: dict[str, Any]) -> "InstructionTokenizer":
+        """From a run record (untrusted: a malformed one raises ValueError)."""
+        from tokenizers import Tokenizer  # deferred: only for instruction-conditioned runs
+
+        try:
+            tokenizer = Tokenizer.from_str(json.dumps(record["tokenizer"]))
+        except Exception as exc:  # noqa: BLE001 - tokenizers raises a bare Exception on malformed JSON
+            raise ValueError(f"the instruction tokenizer does not read ({str(exc)[:120]})") from None
+        max_tokens = int(record["max_tokens"])
+        if not 1 <= max_tokens <= 1024:
+            raise ValueError(f"the instruction tokenizer's max_tokens must lie in [1, 1024], got {max_tokens}")
+        return cls(tokenizer, max_tokens)
+
+
+@dataclass
+class TextConfig:
+    """The instruction encoder (``demo train --text-opt KEY=VALUE``)."""
+
+    dim: int = 64  # width of the token embeddings and of the instruction vector
+    layers: int = 1  # transformer encoder layers over the tokens (0: mean of the embeddings)
+    heads: int = 4
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.dim < 1 or self.layers < 0 or self.heads < 1 or self.dim % self.heads:
+            raise ValueError(f"text encoder: dim ({self.dim}) must be a positive multiple of heads ({self.heads}), "
+                             f"layers >= 0 (got {self.layers})")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"text encoder: dropout must lie in [0, 1), got {self.dropout}")
+
+
+def text_config(options: TextConfig | dict[str, Any] | None) -> TextConfig:
+    if isinstance(options, TextConfig):
+        return options
+    fields = {f.name: f for f in dataclasses.fields(TextConfig)}
+    unknown = sorted(set(options or {}) - set(fields))
+    if unknown:
+        raise ValueError(f"the text encoder has no option {', '.join(unknown)} (options: {', '.join(fields)})")
+    values = {k: (float(v) if k == "dropout" else int(v)) for k, v in (options or {}).items()}
+    return TextConfig(**values)
+
+
+class TextEncoder(nn.Module):
+    """Token ids ``[B, L]`` -> one vector per instruction ``[B, dim]`` (module docstring)."""
+
+    def __init__(self, vocab_size: int, max_tokens: int, config: TextConfig):
+        super().__init__()
+        self.embed = nn.Embedding(vocab_size, config.dim, padding_idx=0)
+        self.position = nn.Parameter(torch.zeros(max_tokens, config.dim))
+        nn.init.normal_(self.position, std=0.02)
+        self.layers = nn.ModuleList(
+            nn.TransformerEncoderLayer(config.dim, config.heads, 4 * config.dim, config.dropout, batch_first=True,
+                                       norm_first=True) for _ in range(config.layers))
+        self.norm = nn.LayerNorm(config.dim)
+
+    def forward(self, tokens: torch.Tensor) -> torch.Tensor:
+        pad = tokens == 0
+        x = self.embed(tokens) + self.position[: tokens.shape[1]]
+        empty = pad.all(dim=1, keepdim=True)  # no token at all (a blanked instruction): attend to the padding
+        pad = pad & ~empty
+        for layer in self.layers:
+            x = layer(x, src_key_padding_mask=pad)
+        keep = (~pad).unsqueeze(-1).to(x.dtype)
+        return self.norm((x * keep).sum(dim=1) / keep.sum(dim=1).clamp(min=1.0))
+
+
+class InstructedPolicy(Policy):
+    """The instruction's vector appended to every frame's low-dim observation of a wrapped policy."""
+
+    def __init__(self, spec: PolicySpec, config: Any, text: TextConfig, build: Callable[[PolicySpec], Policy]):
+        super().__init__(spec, config)
+        self.text_config = text
+        self.text = TextEncoder(spec.vocab, spec.max_tokens, text)
+        self.inner = build(dataclasses.replace(spec, obs_dim=spec.obs_dim + text.dim, vocab=0, max_tokens=0))
+        self.name = self.inner.name
+
+    def condition(self, obs: dict[str, torch.Tensor]) -> torch.Tensor | dict[str, torch.Tensor]:
+        """The wrapped policy's observation: its low-dim vector with the instruction's vector appended."""
+        state = obs[STATE]
+        words = self.text(obs[INSTRUCTION]).to(state.dtype)
+        state = torch.cat([state, words[:, None, :].expand(-1, state.shape[1], -1)], dim=-1)
+        rest = {k: v for k, v in obs.items() if k not in (STATE, INSTRUCTION)}
+        return {STATE: state, **rest} if rest else state
+
+    def loss(self, obs: dict[str, torch.Tensor], action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
+        return self.inner.loss(self.condition(obs), action, action_pad)
+
+    def fit_actions(self, low: np.ndarray, high: np.ndarray) -> None:
+        self.inner.fit_actions(low, high)
+
+    @torch.no_grad()
+    def predict(self, obs: dict[str, torch.Tensor], generator: torch.Generator | None = None) -> torch.Tensor:
+        return self.inner.predict(self.condition(obs), generator=generator)
+
+
+def text_record(policy: Policy) -> dict[str, Any] | None:
+    """The text-encoder settings run.json records for an instruction-conditioned policy (else None)."""
+    return dataclasses.asdict(policy.text_config) if isinstance(policy, InstructedPolicy) else None
