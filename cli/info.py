@@ -46,6 +46,8 @@ def info(
         ("operators", ", ".join(f"{k}: {v}" for k, v in s["operators"].items()) or "-"),
         *([("tasks", ", ".join(f"{k.removeprefix('env:')}: {v}" for k, v in s["tasks"].items()))]
           if len(s["tasks"]) > 1 else []),
+        *([("instructions", "; ".join(f"{k!r}: {v}" for k, v in s["instructions"].items() if k))]
+          if any(s["instructions"]) else []),
         ("masks", ", ".join(f"{k}: {v} episodes" for k, v in s["masks"].items()) or "-"),
     ]
     if check:

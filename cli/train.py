@@ -110,7 +110,7 @@ def train(
     **settings: Any,  # one per option field of TrainConfig and DaggerConfig (with_options, below)
 ) -> None:
     """Train a policy on a store: bc (MLP, action chunks, --head), dagger and its family (safedagger, aggrevate, dart,
-    perturb: with the task's expert), diffusion, act (ACT)."""
+    perturb: with the task's expert), diffusion, flow (flow matching), act (ACT)."""
     from demo.training import distributed  # deferred: torch stays out of demo --help
 
     algorithms.algorithm(algo, algorithms.TRAIN)  # an unknown --algo fails here, naming the choices

@@ -109,6 +109,21 @@ class DiffusionConfig:
         return LARGE if self.large else self.channels
 
 
+def make_denoiser(spec: PolicySpec, config: Any) -> ConditionalUnet1D | MLPDenoiser:
+    """The denoiser ``config`` names (its ``denoiser``, ``width``, ``depth``, ``net_channels``, ``step_embed_dim``,
+    ``kernel``, ``groups``) for chunks of ``spec``, conditioned on the flattened observation history; also
+    flow matching's velocity network (:mod:`demo.policies.flow`)."""
+    cond_dim = spec.n_obs * spec.obs_dim
+    if config.denoiser == "mlp":
+        return MLPDenoiser(spec.action_dim, spec.horizon, cond_dim, config.width, config.depth, config.step_embed_dim)
+    levels = len(config.net_channels)
+    if spec.horizon % 2 ** (levels - 1):
+        raise DemoError("--chunk", f"the UNet denoiser halves the chunk {levels - 1} times: chunk must be a multiple of "
+                                   f"{2 ** (levels - 1)}, got {spec.horizon}")
+    return ConditionalUnet1D(action_dim=spec.action_dim, cond_dim=cond_dim, channels=config.net_channels,
+                             step_embed_dim=config.step_embed_dim, kernel=config.kernel, groups=config.groups)
+
+
 # ================================================================================== 2-3. the policy
 class _Denoiser(nn.Module):
     """The denoiser without its conditioning (``net.denoise``), as a module to trace."""
@@ -127,25 +142,7 @@ class DiffusionPolicy(Policy):
 
     def __init__(self, spec: PolicySpec, config: DiffusionConfig):
         super().__init__(spec, config)
-        cond_dim = spec.n_obs * spec.obs_dim
-        self.net: ConditionalUnet1D | MLPDenoiser
-        if config.denoiser == "mlp":
-            self.net = MLPDenoiser(spec.action_dim, spec.horizon, cond_dim, config.width, config.depth, config.step_embed_dim)
-        else:
-            levels = len(config.net_channels)
-            if spec.horizon % 2 ** (levels - 1):
-                raise DemoError(
-                    "--chunk", f"the diffusion UNet halves the chunk {levels - 1} times: chunk must be a multiple of "
-                    f"{2 ** (levels - 1)}, got {spec.horizon}"
-                )
-            self.net = ConditionalUnet1D(
-                action_dim=spec.action_dim,
-                cond_dim=cond_dim,
-                channels=config.net_channels,
-                step_embed_dim=config.step_embed_dim,
-                kernel=config.kernel,
-                groups=config.groups,
-            )
+        self.net = make_denoiser(spec, config)
         self._fast: dict[str, Any] | None = None  # inference cache, see _inference_plan
 
     def scheduler(self) -> NoiseScheduler:

@@ -101,6 +101,7 @@ _REGISTRY: dict[str, type[Policy]] = {}
 POLICY_MODULES: dict[str, str] = {
     "bc": "demo.policies.mlp",
     "diffusion": "demo.policies.diffusion",
+    "flow": "demo.policies.flow",
     "act": "demo.policies.act",
     "ppo": "demo.policies.gaussian",  # the Gaussian policy of PPO, GAIL, AIRL and linear IRL runs
 }

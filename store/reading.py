@@ -235,6 +235,9 @@ class StoreReading:
             "sources": counts("source") if self.num_episodes else {},
             "operators": counts("operator") if self.num_episodes else {},
             "tasks": counts("task") if self.num_episodes else {},  # per-episode task (several in a task set's store)
+            # what the episodes were told to do, in words (demo.store.instructions; none: {})
+            "instructions": {text: n for text, n in counts("instruction").items() if text != "None"}
+            if "instruction" in t.column_names else {},
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "camera_bytes": camera_bytes({k: (self.array(k), self._dir / "data" / k) for k in self.meta.features
                                           if k.startswith(IMAGE_PREFIX)}, self.num_frames),

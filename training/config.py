@@ -70,6 +70,9 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
         # 93-94% at 16000; with 100 demos at 8000 steps 83%. pick: 90% at 6000 steps, 96% at 8000.
         "steps": 16000,
     },
+    # flow matching (demo.policies.flow) trains as diffusion does: the same chunks, execution and schedule
+    "flow": {"chunk": 16, "n_obs": 2, "execute": 4, "ensemble": False, "lr": 1e-3, "weight_decay": 1e-6,
+             "warmup_steps": 500, "ema": 0.995, "batch_size": 256, "steps": 16000},
     # ACT (demo.policies.act): a query every step, temporal ensembling exp(-0.01 i) over every chunk
     # covering the step (ACT's own execution; --ensemble-decay is its k).
     "act": {
@@ -101,6 +104,7 @@ HEAD_DEFAULTS: dict[str, dict[str, Any]] = {"gmm": {"steps": 30000}}
 IMAGE_DEFAULTS: dict[str, dict[str, Any]] = {
     "bc": {"batch_size": 64, "steps": 6000},
     "diffusion": {"batch_size": 64, "steps": 6000, "n_obs": 1},
+    "flow": {"batch_size": 64, "steps": 6000, "n_obs": 1},
 }
 
 # DAgger's learner is BC's policy with BC's own defaults (16-step chunks, ensembled), trained on the expert's

@@ -383,6 +383,43 @@ def bench_infer(
     write_json(r, json_out)
 
 
+@bench_app.command("samplers")
+def bench_samplers(
+    json_out: str = json_option(default="-"),
+    steps: str = typer.Option("1,4,10", help="Flow matching's Euler steps to time (comma-separated)."),
+    run: list[str] = typer.Option([], "--run", metavar="ALGO=RUN", help="A run to roll out (bc, diffusion or flow, "
+                                  "repeatable): success on the same demo eval episodes, flow's at every --steps.",
+                                  show_default="latency only"),
+    episodes: int = typer.Option(100, help="With --run: evaluation episodes per run and setting."),
+    seed: int = typer.Option(0, help="Evaluation seed (as demo eval --seed)."),
+    threads: int = typer.Option(1, help="Torch threads (demo eval runs policies on 1)."),
+    seconds: float = typer.Option(10.0, help="Timing budget in s (the samplers are timed in turn within it)."),
+) -> None:
+    """Milliseconds per action chunk (batch 1): BC's MSE head, diffusion (DDIM 8) and flow matching at 1, 4, 10 steps."""
+    from demo.bench.samplers import run as run_samplers  # deferred: torch stays out of demo --help
+
+    try:
+        ks = tuple(int(k) for k in steps.split(",") if k.strip())
+    except ValueError:
+        raise DemoError("--steps", f"{steps!r} is not a comma-separated list of integers") from None
+    runs = {}
+    for item in run:
+        name, sep, path = item.partition("=")
+        if not sep or not path:
+            raise DemoError("--run", f"{item!r} is not ALGO=RUN (e.g. flow=runs/pick_flow)")
+        runs[name.strip()] = path
+    r = run_samplers(steps=ks, runs=runs or None, episodes=episodes, seed=seed, threads=threads, seconds=seconds)
+    rows = []
+    for name, ms in r["ms_per_chunk"].items():
+        s = (r.get("success") or {}).get("bc" if name == "mse" else name)
+        rows.append((name, f"{ms:.2f}", f"{r['ratio_to_reference'][name]:.2f}x",
+                     "-" if s is None else f"{s['successes']}/{s['episodes']} ({s['success_rate']:.0%})"))
+    report_console(json_out).print(table(f"bench samplers ({r['config']['threads']} thread(s), batch 1; reference "
+                                         f"{r['reference']})", ["sampler", "ms per chunk", "vs reference", "success"],
+                                         rows))
+    write_json(r, json_out)
+
+
 @bench_app.command("env")
 def bench_env(
     run: str = typer.Argument(..., metavar=RUN, help="A run trained on a Gymnasium environment (demo collect --env)."),

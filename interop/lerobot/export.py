@@ -59,6 +59,7 @@ from demo.interop.video import VideoSettings, unencodable
 from demo.progress import Progress
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.episode_store import EpisodeSelection
+from demo.store.instructions import episode_instructions
 from demo.store.location import store_path as locate_store
 from demo.store.spec import is_image
 
@@ -265,10 +266,13 @@ def export_lerobot(
     carried = carried_columns(src)
     report = InteropReport("lerobot", "export", store_path, out, episodes=int(len(chosen)))
 
-    task_column, success_column = src.column("task"), src.column("success")
+    # LeRobot's task is the episode's language: its instruction where it has one, else the task's name
+    told = episode_instructions([src])
+    task_column = [told[i] or str(name) for i, name in enumerate(src.column("task"))]
+    success_column = src.column("success")
     tasks: dict[str, int] = {}
     for i in chosen:
-        tasks.setdefault(str(task_column[i]), len(tasks))
+        tasks.setdefault(task_column[i], len(tasks))
 
     accumulators = {name: lerobot_stats.StatsAccumulator(f["dtype"] in ("image", "video"))
                     for name, f in features.items()}
@@ -284,13 +288,13 @@ def export_lerobot(
             for new_index, src_index in enumerate(track(chosen, len(chosen), "export lerobot", progress)):
                 data = src.read_episode(int(src_index))
                 length = len(data["action"])
-                task_index = tasks[str(task_column[src_index])]
+                task_index = tasks[task_column[src_index]]
                 values = _frame_values(columns, data, new_index, index, task_index, fps, bool(success_column[src_index]))
                 table = pa.table({name: _arrow(features[name], v) for name, v in values.items() if name not in videos})
                 chunk, file = writer.add(table)
                 row: dict[str, Any] = {
                     "episode_index": new_index,
-                    "tasks": [str(task_column[src_index])],
+                    "tasks": [task_column[src_index]],
                     "length": length,
                     "data/chunk_index": chunk,
                     "data/file_index": file,

@@ -45,6 +45,7 @@ from demo.sim.env import joint_pos_action
 from demo.sim.robot import load_robot
 from demo.sim.robot_record import BUILTIN
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
+from demo.store.instructions import INSTRUCTION_COLUMN, MAX_CHARACTERS, normalized
 
 # The Column.kind values a recorded key map may hold (see demo.interop.lerobot.layout.Column).
 COLUMN_KINDS = ("state", "image", "video", "array")
@@ -221,6 +222,9 @@ def _episode_from_table(
         if "next.success" in ep.column_names:
             success = bool(np.asarray(column_to_numpy(ep.column("next.success"), str(path))).reshape(length, -1)[-1].any())
         episode_info = {"success": success, "seed": -1, "source": "imported", "operator": "", "task": task}
+        told = normalized(task)[:MAX_CHARACTERS]  # LeRobot's task is the episode's language: its instruction
+        return data, {**append_info(check_info(episode_info, f"{path}: episode {i}")),
+                      **({INSTRUCTION_COLUMN: told} if told else {})}
     return data, append_info(check_info(episode_info, f"{path}: episode {i}"))
 
 

@@ -74,3 +74,22 @@ def test_bench_multimodal_end_to_end(tmp_path, capfd) -> None:
     # a missing run directory: one error line, exit 1
     assert main(["bench", "multimodal", "--diffusion", str(tmp_path / "nope"), "--reference", str(tmp_path / "bc"),
                  "--png", str(png)]) == 1
+
+
+def test_bench_samplers_times_every_sampler_and_rolls_out_runs(tmp_path) -> None:
+    """`demo bench samplers`: MSE, diffusion and flow at each --steps timed in the same run; a flow run rolled out at
+    every step count; a run given under another algorithm's name, or a bad step list, is one line."""
+    from demo.cli.main import main
+    from demo.collect.scripted import CollectConfig, collect_scripted
+
+    collect_scripted(CollectConfig(task="reach", episodes=6, seed=0), tmp_path / "r.zarr", workers=0)
+    assert main(["train", str(tmp_path / "r.zarr"), "--algo", "flow", "--steps", "30", "--out", str(tmp_path / "flow"),
+                 "--policy-opt", "width=32", "--policy-opt", "depth=1"]) == 0
+    out = tmp_path / "s.json"
+    assert main(["bench", "samplers", "--seconds", "0.05", "--steps", "1,3", "--run", f"flow={tmp_path / 'flow'}",
+                 "--episodes", "2", "--json", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert set(r["ms_per_chunk"]) == {"mse", "diffusion", "flow-1", "flow-3"} and r["ratio_to_reference"]["diffusion"] == 1
+    assert set(r["success"]) == {"flow-1", "flow-3"} and r["success"]["flow-3"]["episodes"] == 2
+    assert main(["bench", "samplers", "--run", f"diffusion={tmp_path / 'flow'}", "--seconds", "0.01"]) == 1
+    assert main(["bench", "samplers", "--steps", "0"]) == 1

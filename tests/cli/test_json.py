@@ -85,6 +85,8 @@ CASES: dict[str, Case] = {
     "bench train": lambda i: (["--frames", "5000", "--seconds", "0.1", "--hidden", "32,32"],
                               {"samples_per_s", "reference_samples_per_s"}),
     "bench infer": lambda i: (["--seconds", "0.3"], {"ms_per_chunk", "reference_ms_per_chunk"}),
+    "bench samplers": lambda i: (["--seconds", "0.2", "--steps", "1,2"], {"ms_per_chunk", "reference_ms_per_chunk",
+                                                                          "ratio_to_reference"}),
     "bench faults": lambda i: (["--episodes", "50", "--kills", "1", "--append-kills", "0", "--races", "0", "--creates", "0",
                                 "--max-kill-s", "1"], {"scenarios", "finished_lost", "ok"}),
 }

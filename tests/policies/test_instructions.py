@@ -13,10 +13,10 @@ import json
 import textwrap
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from demo.cli.main import main
+from demo.interop.lerobot.layout import EXTRA_KEY
 from demo.policies.checkpoint import load_bundle
 from demo.store import EpisodeStore
 
@@ -132,3 +132,25 @@ def test_bad_instructions_fail_in_one_line(dots: Path, tmp_path: Path, monkeypat
         store.set_column("instruction", ["go to the red dot", "", "go to the blue dot", "go"])
     one_line_error(["train", str(tmp_path / "mixed.zarr"), "--out", str(tmp_path / "m"), "--steps", "10",
                     "--instructions", "--val-fraction", "0"], "mixed.zarr", "episode 1 has no instruction")
+
+
+def test_instructions_are_lerobots_tasks_both_ways(dots: Path, tmp_path: Path) -> None:
+    """Exported, each episode's instruction is its LeRobot task (meta/tasks.parquet, per-frame task_index);
+    imported back, the instruction column is the same; a LeRobot dataset demo did not write gives its tasks
+    as the instructions."""
+    import pyarrow.parquet as pq
+
+    assert main(["export", str(dots / "dots.zarr"), "--format", "lerobot", "--out", str(tmp_path / "lr")]) == 0
+    tasks = pq.read_table(tmp_path / "lr" / "meta" / "tasks.parquet").column("task").to_pylist()
+    assert sorted(tasks) == ["go to the blue dot", "go to the red dot"]
+    assert main(["import", str(tmp_path / "lr"), "--out", str(tmp_path / "back.zarr")]) == 0
+    with EpisodeStore.open(dots / "dots.zarr") as a, EpisodeStore.open(tmp_path / "back.zarr") as b:
+        assert b.column("instruction").tolist() == a.column("instruction").tolist()
+        assert b.column("task").tolist() == a.column("task").tolist()
+    # Another writer's dataset: no demo columns, the tasks alone say what each episode was told.
+    info = json.loads((tmp_path / "lr" / "meta" / "info.json").read_text())
+    info.pop(EXTRA_KEY)
+    (tmp_path / "lr" / "meta" / "info.json").write_text(json.dumps(info))
+    assert main(["import", str(tmp_path / "lr"), "--out", str(tmp_path / "foreign.zarr")]) == 0
+    with EpisodeStore.open(dots / "dots.zarr") as a, EpisodeStore.open(tmp_path / "foreign.zarr") as b:
+        assert b.column("instruction").tolist() == a.column("instruction").tolist()
