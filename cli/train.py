@@ -17,7 +17,7 @@ from demo import algorithms
 from demo.cli.config_options import config_options, option_fields, with_options
 from demo.cli.main import app, invocation
 from demo.cli.options import (address_option, device_option, executor_option, json_option, overwrite_option,
-                              robot_option, store_argument)
+                              robot_option)
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
@@ -28,6 +28,25 @@ from demo.training.config import (DAGGER_DEFAULTS, HEAD_DEFAULTS, IMAGE_DEFAULTS
 
 FAMILY = algorithms.family()  # rollouts + aggregation: DaggerConfig
 ALGOS = algorithms.names(algorithms.TRAIN)
+
+
+def _stores_and_weights(stores: list[str], mix: list[str]) -> tuple[list[str], tuple[float, ...]]:
+    """The stores to train on (STORE... or --mix's) and their batch shares (--mix's; () without)."""
+    if mix and stores:
+        raise DemoError("--mix", "names the stores with their weights: give the stores either as STORE... or as --mix")
+    if not mix and not stores:
+        raise DemoError("STORE", "give the episode store(s) to learn from (or --mix STORE=W ...)")
+    weights = []
+    for item in mix:
+        path, sep, weight = item.rpartition("=")
+        try:
+            weights.append(float(weight))
+        except ValueError:
+            raise DemoError("--mix", f"{item!r} is not STORE=WEIGHT (e.g. pick.zarr=0.7)") from None
+        if not sep or not path:
+            raise DemoError("--mix", f"{item!r} is not STORE=WEIGHT (e.g. pick.zarr=0.7)")
+        stores.append(path)
+    return stores, tuple(weights)
 
 
 def parse_policy_opts(items: list[str], flag: str = "--policy-opt") -> dict[str, str]:
@@ -59,7 +78,7 @@ TRAIN_OPTIONS = {f.name for f in option_fields(TrainConfig)}
 DAGGER_OPTIONS = {f.name for f in option_fields(DaggerConfig)}
 # Fields demo train sets from its own arguments rather than a generated option (tests/training/test_cli_options.py
 # holds this list, the generated options and the dataclasses to each other).
-SET_BY_ARGUMENTS = {"data": "STORES", "out": "--out", "algo": "--algo", "policy": "--policy-opt", "encoder": "--encoder", "text": "--text-opt",
+SET_BY_ARGUMENTS = {"data": "STORES", "mix": "--mix", "out": "--out", "algo": "--algo", "policy": "--policy-opt", "encoder": "--encoder", "text": "--text-opt",
                     "obs_keys": "--obs-keys", "relative_actions": "--absolute-actions", "eval_every": "--eval-every",
                     "eval_episodes": "--eval-episodes", "eval_final": "--eval-episodes", "robot": "--robot",
                     "device": "--device", "train": "STORES"}
@@ -68,8 +87,13 @@ SET_BY_ARGUMENTS = {"data": "STORES", "out": "--out", "algo": "--algo", "policy"
 @app.command()
 @with_options("algo", config_options(TrainConfig, _defaults), config_options(DaggerConfig, prefix="dagger family: "))
 def train(
-    stores: list[str] = store_argument("Episode store to learn from (e.g. pick.zarr); never modified. Several: one policy "
-                                        "on their union (same task and action representation, e.g. two arms' ee7 stores)."),
+    stores: list[str] = typer.Argument(None, metavar="STORE", help="Episode store to learn from (e.g. pick.zarr); never "
+                                       "modified. Several: one policy on their union (same action representation, e.g. two "
+                                       "arms' ee7 stores; same task unless every episode carries an instruction).",
+                                       show_default=False),
+    mix: list[str] = typer.Option([], "--mix", metavar="STORE=W", help="A store and its share of each batch (repeatable, "
+                                  "instead of STORE...; the weights sum to 1).", show_default="batches in proportion to "
+                                  "the stores' windows"),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (checkpoints, metrics, curves).",
                              show_default=False),
     algo: str = typer.Option("bc", help=f"Algorithm: {', '.join(ALGOS)}."),
@@ -114,6 +138,7 @@ def train(
     from demo.training import distributed  # deferred: torch stays out of demo --help
 
     algorithms.algorithm(algo, algorithms.TRAIN)  # an unknown --algo fails here, naming the choices
+    stores, weights = _stores_and_weights(stores or [], mix)
     if algo in FAMILY and len(stores) > 1:
         raise DemoError("--algo", f"{algo} trains on one store (it rolls out on one robot and aggregates into one store)")
     if algo not in FAMILY and (workers != 1 or executor != "process" or address):
@@ -135,6 +160,7 @@ def train(
     given = dict(
         learner,
         data=str(stores[0]) if len(stores) == 1 else tuple(str(s) for s in stores),  # several: their union
+        mix=weights,
         out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), obs_keys=_obs_keys(obs_keys),
         relative_actions=not absolute_actions, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, robot=str(robot) if robot else None,

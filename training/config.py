@@ -137,6 +137,9 @@ class TrainConfig:
 
     # ---- what and where (set by demo train's arguments: STORE..., --out, --algo, --policy-opt/--head, --encoder/--crop)
     data: str | tuple[str, ...] = ""  # episode store, or several trained on as one (demo.training.data.prepare_union)
+    # Per store of a union, the share of each batch drawn from it (sums to 1; set by --mix STORE=W); () = in
+    # proportion to the stores' windows
+    mix: tuple[float, ...] = ()
     out: str = ""  # run directory
     algo: str = "bc"  # registered policy (demo.policies.policy): bc (MLP), diffusion, ...
     policy: dict[str, Any] = field(default_factory=dict)  # the policy's Config fields, e.g. {"hidden": (256, 256)}
@@ -229,10 +232,19 @@ class TrainConfig:
             raise DemoError("--lr", f"must be > 0, got {self.lr}")
         if self.ensemble_decay < 0:
             raise DemoError("--ensemble-decay", f"must be >= 0, got {self.ensemble_decay}")
+        if self.mix:
+            if len(self.mix) != len(self.stores):
+                raise DemoError("--mix", f"gives {len(self.mix)} weights for {len(self.stores)} stores")
+            if min(self.mix) < 0 or abs(sum(self.mix) - 1.0) > 1e-6:
+                raise DemoError("--mix", f"weights must be >= 0 and sum to 1, got {', '.join(f'{w:g}' for w in self.mix)} "
+                                         f"(sum {sum(self.mix):g})")
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["obs_keys"] = list(self.obs_keys)
+        d["mix"] = list(self.mix)
+        if not self.mix:  # recorded only when set: runs without it read as before
+            d.pop("mix")
         if not isinstance(self.data, str):
             d["data"] = list(self.data)
         d["policy"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.policy.items()}

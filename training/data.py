@@ -130,6 +130,7 @@ class TrainingData:
     sources: tuple[Source, ...] = ()  # the stores, in concatenation order (one unless a union)
     chunks: np.ndarray | None = None  # [N, H, A] raw chunk labels (CHUNK_KEY), all NaN on a frame without one
     instructions: Instructions | None = None  # the episodes' instructions, for an instruction-conditioned policy
+    mix: tuple[float, ...] = ()  # per source, its share of each training batch (TrainConfig.mix); () = by windows
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -182,8 +183,10 @@ def prepare_union(config: TrainConfig, stores: Sequence[EpisodeStore]) -> Traini
         raise DemoError(twice, "is named twice; a union takes each store once")
     first = stores[0]
     obs_spec = ObsSpec.from_features(first.meta.features, config.obs_keys or None, str(first.path))
+    # Told what to do in words, one policy learns several tasks: the stores may hold different ones.
+    instructed = config.instructions is not False and all(_every_episode_told(s) for s in stores)
     for store in stores[1:]:
-        check_union(first, store, obs_spec)
+        check_union(first, store, obs_spec, same_task=not instructed)
     relative = default_relative(first.meta) if config.relative_actions else None
     return _assemble(config, stores, [split_episodes(store, config) for store in stores], obs_spec, relative)
 
@@ -195,16 +198,23 @@ def open_stores(paths: Sequence[str]) -> Iterator[list[EpisodeStore]]:
         yield [stack.enter_context(EpisodeStore.open(p)) for p in paths]
 
 
-def check_union(first: EpisodeStore, store: EpisodeStore, obs_spec: ObsSpec) -> None:
+def _every_episode_told(store: EpisodeStore) -> bool:
+    texts = episode_instructions([store])
+    return bool(texts) and all(texts)
+
+
+def check_union(first: EpisodeStore, store: EpisodeStore, obs_spec: ObsSpec, same_task: bool = True) -> None:
     """Refuse (one DemoError naming ``store``) a store that cannot share a policy with ``first``:
-    another task or rate, another action representation (joint-space actions of arms with other
-    joints included), or observations ``obs_spec`` reads that it lacks or holds in another shape."""
+    another task (unless ``same_task`` is False: every episode carries an instruction) or rate, another
+    action representation (joint-space actions of arms with other joints included), or observations
+    ``obs_spec`` reads that it lacks or holds in another shape."""
     a, b, where = first.meta, store.meta, store.path
     convert = "convert every store with `demo convert STORE --to ee7 --out ...`"
     task_a, task_b = a.task or {}, b.task or {}
-    if (task_a.get("name"), task_a.get("options")) != (task_b.get("name"), task_b.get("options")):
+    if same_task and (task_a.get("name"), task_a.get("options")) != (task_b.get("name"), task_b.get("options")):
         raise DemoError(where, f"holds task {task_b.get('name')!r} {task_b.get('options') or ''}, {first.path} "
-                               f"{task_a.get('name')!r} {task_a.get('options') or ''}: one policy trains on one task")
+                               f"{task_a.get('name')!r} {task_a.get('options') or ''}: one policy trains on one task "
+                               "unless every episode carries an instruction (demo collect --instruction)")
     if a.fps != b.fps:
         raise DemoError(where, f"runs at {b.fps} Hz, {first.path} at {a.fps} Hz: one policy acts at one rate")
     if a.action.to_json() != b.action.to_json():
@@ -265,7 +275,7 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     if instructions is not None:
         spec = replace(spec, vocab=instructions.tokenizer.vocab_size, max_tokens=instructions.tokenizer.max_tokens)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
-                        obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions)
+                        obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions, tuple(config.mix))
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
 
@@ -393,6 +403,13 @@ class Windows:
         self.chunks = data.chunks
         self.has_chunk = None if data.chunks is None else np.isfinite(data.chunks[:, 0, 0])
         self.instructions = data.instructions
+        # --mix: per store, its windows (by query frame) and the share of each batch drawn from them
+        self.mix: list[tuple[float, np.ndarray]] = []
+        if data.mix and len(data.sources) > 1:
+            starts = np.concatenate([[0], data.ends[:-1]])
+            for source, weight in zip(data.sources, data.mix):
+                lo, hi = starts[source.first_episode], data.ends[source.first_episode + source.episodes - 1]
+                self.mix.append((weight, self.sampler.indices[(self.sampler.indices >= lo) & (self.sampler.indices < hi)]))
 
     def __len__(self) -> int:
         return len(self.sampler)
@@ -432,7 +449,15 @@ class Windows:
         return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:
-        return self.get(self.sampler.indices[rng.integers(0, len(self.sampler.indices), size=batch_size)])
+        """``batch_size`` windows drawn uniformly (with ``mix``: each store's share of them from its windows)."""
+        if not self.mix:
+            return self.get(self.sampler.indices[rng.integers(0, len(self.sampler.indices), size=batch_size)])
+        weights = np.array([w if len(idx) else 0.0 for w, idx in self.mix])
+        if weights.sum() <= 0:
+            raise DemoError("--mix", "every store with a weight above 0 has no training windows")
+        counts = rng.multinomial(batch_size, weights / weights.sum())
+        picks = [idx[rng.integers(0, len(idx), size=n)] for (_, idx), n in zip(self.mix, counts) if n]
+        return self.get(np.concatenate(picks))
 
     def fixed(self, n: int, seed: int) -> Batch | None:
         """Up to ``n`` windows chosen once (validation), or None when there are none."""

@@ -327,7 +327,7 @@ def store_record(data: TrainingData, i: int) -> dict[str, Any]:
     lo, hi = source.first_episode, source.first_episode + source.episodes
     train, val = (int(np.count_nonzero((eps >= lo) & (eps < hi))) for eps in (data.train_episodes, data.val_episodes))
     return {"path": absolute(source.path), "first_episode": lo, "episodes": source.episodes,
-            "train_episodes": train, "val_episodes": val}
+            "train_episodes": train, "val_episodes": val, **({"weight": data.mix[i]} if data.mix else {})}
 
 
 def data_paths(record: dict[str, Any]) -> list[str]:

@@ -32,7 +32,8 @@ TWO_DOTS = textwrap.dedent('''
 
         metadata = {"render_modes": [], "render_fps": 10}
 
-        def __init__(self):
+        def __init__(self, target=None):  # "red" or "blue": every episode's; None: drawn per episode
+            self.fixed = None if target is None else COLOURS.index(target)
             self.observation_space = gym.spaces.Box(-1.0, 1.0, (6,), np.float32)  # position, red, blue
             self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
             self.instruction = ""
@@ -43,7 +44,7 @@ TWO_DOTS = textwrap.dedent('''
             angle = self.np_random.uniform(0, 2 * np.pi)
             offset = 0.6 * np.array([np.cos(angle), np.sin(angle)])
             self.dots = np.stack([offset, -offset])  # on opposite sides: a policy that guesses goes one way
-            self.target = int(self.np_random.integers(2))
+            self.target = int(self.np_random.integers(2)) if self.fixed is None else self.fixed
             self.instruction = f"go to the {COLOURS[self.target]} dot"
             return self._obs(), {}
 
@@ -154,3 +155,30 @@ def test_instructions_are_lerobots_tasks_both_ways(dots: Path, tmp_path: Path) -
     assert main(["import", str(tmp_path / "lr"), "--out", str(tmp_path / "foreign.zarr")]) == 0
     with EpisodeStore.open(dots / "dots.zarr") as a, EpisodeStore.open(tmp_path / "foreign.zarr") as b:
         assert b.column("instruction").tolist() == a.column("instruction").tolist()
+
+
+def test_stores_of_different_tasks_mix_into_one_policy_with_weights(dots: Path, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch, one_line_error) -> None:
+    """Red-only and blue-only stores (different tasks: the environment's options differ) train one policy because
+    their episodes carry instructions; --mix's weights decide what it learns: blue at weight 0 is not learnt."""
+    monkeypatch.syspath_prepend(str(dots))
+    for colour in ("red", "blue"):
+        assert main(["collect", "--env", "two_dots:TwoDots-v0", "--env-opt", f"target={colour}", "--expert",
+                     "two_dots:expert", "--episodes", "100", "--seed", "5" if colour == "red" else "6", "--workers", "0",
+                     "--out", str(tmp_path / f"{colour}.zarr")]) == 0
+    red, blue = str(tmp_path / "red.zarr"), str(tmp_path / "blue.zarr")
+    common = ["--steps", "1500", "--chunk", "1", "--no-ensemble", "--seed", "0"]
+    assert main(["train", "--mix", f"{red}=0.5", "--mix", f"{blue}=0.5", "--out", str(tmp_path / "even"), *common]) == 0
+    assert main(["train", "--mix", f"{red}=1", "--mix", f"{blue}=0", "--out", str(tmp_path / "red_only"), *common]) == 0
+    run = json.loads((tmp_path / "even" / "run.json").read_text())
+    assert [s["weight"] for s in run["data"]["stores"]] == [0.5, 0.5] and run["train"]["mix"] == [0.5, 0.5]
+    on_blue = ["--env", "two_dots:TwoDots-v0", "--env-opt", "target=blue"]
+    even = evaluate(tmp_path / "even", tmp_path / "e.json", *on_blue)
+    red_only = evaluate(tmp_path / "red_only", tmp_path / "r.json", *on_blue)
+    assert even["success_rate"] >= 0.9 and red_only["success_rate"] <= 0.2, (even["success_rate"], red_only["success_rate"])
+    one_line_error(["train", "--mix", f"{red}=0.7", "--mix", f"{blue}=0.7", "--out", str(tmp_path / "x")], "--mix",
+                   "sum to 1")
+    one_line_error(["train", red, "--mix", f"{blue}=1", "--out", str(tmp_path / "x")], "--mix", "either")
+    one_line_error(["train", "--mix", f"{red}", "--out", str(tmp_path / "x")], "--mix", "STORE=WEIGHT")
+    one_line_error(["train", red, blue, "--no-instructions", "--out", str(tmp_path / "x")], "blue.zarr",
+                   "unless every episode carries an instruction")
