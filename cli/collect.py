@@ -8,7 +8,7 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.options import (address_option, env_opt_option, env_option, executor_option, json_option, overwrite_option,
-                              parse_env_opts, robot_option)
+                              parse_env_opts, robot_option, task_opt_option)
 from demo.cli.output import kv_table, report_console, warn, write_json
 from demo.cli.progress import bars
 from demo.collect.kinesthetic import collect_kinesthetic
@@ -60,6 +60,7 @@ def collect(
     smoothing: float = typer.Option(2.0, help="vr: jitter filter cutoff in Hz (0 = off)."),
     robot: Path = robot_option(),
     blocks: int = typer.Option(None, help="stack: number of cubes to stack.", show_default="the task's default"),
+    task_opt: list[str] = task_opt_option(),
     camera: list[str] = typer.Option([], metavar="NAME@WxH", help="Record camera images, e.g. front@128x128 (repeatable).",
                                      show_default="none"),
     randomize: str = typer.Option(None, "--randomize", metavar="PRESET|KIND=LEVEL,...|FILE", help="scripted: domain "
@@ -98,7 +99,10 @@ def collect(
     if (expert is not None or env_opt) and env is None:
         raise DemoError("--expert" if expert is not None else "--env-opt", "applies to a Gymnasium environment (--env)")
     robot_config = str(robot) if robot else None
-    options = parse_env_opts(env_opt) if env is not None else task_options(blocks)
+    if task_opt and env is not None:
+        raise DemoError("--task-opt", "sets an option of --task; an environment's are --env-opt")
+    options = parse_env_opts(env_opt) if env is not None else {**task_options(blocks),
+                                                                 **parse_env_opts(task_opt, "--task-opt")}
     task = task_name(env) if env is not None else task
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":

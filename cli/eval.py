@@ -10,7 +10,7 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.options import (address_option, device_option, env_opt_option, env_option, executor_option, json_option,
-                              parse_env_opts, robot_option, run_argument)
+                              parse_env_opts, robot_option, run_argument, task_opt_option)
 from demo.errors import DemoError
 from demo.seeds import eval_seeds
 from demo.sim.foreign import task_name
@@ -29,6 +29,7 @@ def eval_(
     task: str = typer.Option(None, help="Task (only the one the policy was trained on is allowed).",
                              show_default="the trained task"),
     blocks: int = typer.Option(None, help="stack: number of cubes (must match training).", show_default="the trained one"),
+    task_opt: list[str] = task_opt_option(),
     env: str = env_option(),
     env_opt: list[str] = env_opt_option(),
     robot: str = robot_option("Robot to evaluate on: the name of one the run was trained on, or a robot config TOML "
@@ -71,7 +72,10 @@ def eval_(
         raise DemoError("--env", "names the environment to evaluate on: --task and --blocks do not apply")
     if env_opt and env is None:
         raise DemoError("--env-opt", "sets an option of --env")
-    options = parse_env_opts(env_opt) if env is not None else None if blocks is None else {"blocks": blocks}
+    if task_opt and env is not None:
+        raise DemoError("--task-opt", "sets an option of the task; an environment's are --env-opt")
+    given = {**({} if blocks is None else {"blocks": blocks}), **parse_env_opts(task_opt, "--task-opt")}
+    options = parse_env_opts(env_opt) if env is not None else given or None
     config = EvalConfig(
         run=str(run), task=task_name(env) if env is not None else task, task_options=options,
         robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,

@@ -81,13 +81,19 @@ def env_opt_option() -> Any:
                         "horizon of one that has none.", show_default="none")
 
 
-def parse_env_opts(items: list[str]) -> dict[str, Any]:
+def task_opt_option() -> Any:
+    return typer.Option([], "--task-opt", metavar="KEY=VALUE", help="A task option (repeatable; VALUE read as JSON "
+                        "where it parses), e.g. pick's colours=3: three coloured cubes, the target named by each "
+                        "episode's instruction.", show_default="the task's defaults")
+
+
+def parse_env_opts(items: list[str], flag: str = "--env-opt") -> dict[str, Any]:
     """``--env-opt KEY=VALUE`` items as keyword arguments (a value that parses as JSON is that value)."""
     opts: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
-            raise DemoError("--env-opt", f"{item!r} is not KEY=VALUE (e.g. max_episode_steps=200)")
+            raise DemoError(flag, f"{item!r} is not KEY=VALUE (e.g. max_episode_steps=200)")
         try:
             opts[key.strip()] = json.loads(text)
         except json.JSONDecodeError:

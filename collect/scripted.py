@@ -147,8 +147,9 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
         info["operator_failure"] = operator.failure_kind
     if config.randomize:  # this episode's draws (its seed gives them again: demo.sim.randomize)
         info["randomization"] = json.dumps(env.randomized, sort_keys=True)
-    if config.instruction:
-        info["instruction"] = config.instruction
+    told = config.instruction or env.instruction
+    if told:
+        info["instruction"] = told
     return episode.data, info
 
 

@@ -57,6 +57,7 @@ from demo.sim.robot_record import resolve_robot, robot_record
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.randomize import Randomization
+from demo.sim.tasks import TASKS
 from demo.sim.rollout import StepCommand, env_store_meta, rollout
 from demo.store.instructions import check_instruction
 from demo.store.output import open_output
@@ -133,7 +134,9 @@ def resolve_target(
     if foreign:  # a Gymnasium environment brings its own robot; its options are its own
         return task, trained_options if task_options is None else dict(task_options), None
     options = trained_options if task_options is None else {**trained_options, **task_options}
-    if trained_task and options != trained_options:
+    wording = getattr(TASKS.get(task), "wording_options", ())  # e.g. held-out paraphrases of the instructions
+    if trained_task and {k: v for k, v in options.items() if k not in wording} != \
+            {k: v for k, v in trained_options.items() if k not in wording}:
         raise DemoError(
             where, f"was trained on {task} with options {trained_options}; it cannot be evaluated with {options}"
         )

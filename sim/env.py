@@ -270,6 +270,12 @@ class Env:
     def success(self) -> bool:
         return bool(self.task.success(self))
 
+    @property
+    def instruction(self) -> str:
+        """What this episode asks for in words ("" for a task that says nothing: demo.sim.pick's ``colours``
+        variants name their target)."""
+        return str(getattr(self.task, "instruction", ""))
+
     # ------------------------------------------------------------------ observations
     def observe(self) -> dict[str, np.ndarray]:
         """Observations of the current state (``obs.*``).

@@ -43,6 +43,9 @@ class Task:
     # (demo.rl.adversarial). No per-episode constant it could memorise to tell the demonstrations'
     # few goals from the policy's new ones, nothing of the arm's redundant posture. Empty: the policy's.
     relative_goal_keys: ClassVar[tuple[str, ...]] = ()
+    # Options that change only how an episode's instruction is worded, not the scene: a policy trained with
+    # one value may be evaluated with another (held-out paraphrases).
+    wording_options: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, **options: Any):
         unknown = sorted(set(options) - set(self.defaults))

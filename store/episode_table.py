@@ -17,7 +17,8 @@ crc32          int64    CRC-32 of the episode's bytes, features in metadata orde
 
 Any other column is allowed: ``mask.<name>`` (bool) columns are named subsets, like robomimic's
 filter keys; ``score.<name>`` (float64) columns hold curation signals; anything else is free
-per-episode info (for example ``dagger_round``). Rewriting a few thousand rows takes milliseconds.
+per-episode info (for example ``dagger_round``; ``instruction``, what the episode was told to do in
+words: :mod:`demo.store.instructions`). Rewriting a few thousand rows takes milliseconds.
 """
 
 from __future__ import annotations
