@@ -8,6 +8,10 @@ rollout's seeded generator. With ``horizon > 1`` this is action chunking as in A
 without the transformer; :mod:`demo.policies.actor` executes the chunks with receding horizon and
 optional temporal ensembling. The loss ignores chunk steps past the episode end (ACT's ``is_pad``)
 unless ``loss_on_pad`` is set.
+
+Given a conditioning vector (``spec.cond_dim``: an instruction's, :mod:`demo.policies.instruction`),
+every hidden layer's pre-activation ``h`` becomes ``h * (1 + gamma(c)) + beta(c)`` (FiLM, Perez et al.
+2018; RT-1's conditioning), ``gamma`` and ``beta`` linear in ``c`` and zero at initialisation.
 """
 
 from __future__ import annotations
@@ -19,7 +23,10 @@ import torch
 from torch import nn
 
 from demo.policies.heads import GMM_OBJECTIVES, HEADS, ChunkHead, make_head
+from demo.policies.observation import STATE
 from demo.policies.policy import Policy, PolicySpec, register_policy
+
+CONDITION = "condition"  # = demo.policies.instruction.CONDITION (that module imports this one's registry)
 
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU, "mish": nn.Mish, "silu": nn.SiLU}
 
@@ -71,6 +78,7 @@ class MLPConfig:
 @register_policy("bc")
 class MLPPolicy(Policy):
     Config = MLPConfig
+    takes_condition = True
 
     def __init__(self, spec: PolicySpec, config: MLPConfig):
         super().__init__(spec, config)
@@ -80,10 +88,12 @@ class MLPPolicy(Policy):
                                          objective=config.objective, wta_epsilon=config.wta_epsilon)
         layers: list[nn.Module] = []
         width = spec.n_obs * spec.obs_dim
+        self.film_at: list[int] = []  # the layers whose outputs FiLM modulates (before their activation)
         for h in config.hidden:
             layers.append(nn.Linear(width, h))
             if config.layer_norm:
                 layers.append(nn.LayerNorm(h))
+            self.film_at.append(len(layers) - 1)
             layers.append(ACTIVATIONS[config.activation]())
             if config.dropout:
                 layers.append(nn.Dropout(config.dropout))
@@ -92,10 +102,27 @@ class MLPPolicy(Policy):
         # keep the names and shapes they had before heads existed.
         layers.append(nn.Linear(width, self.head.width))
         self.net = nn.Sequential(*layers)
+        self.film = None
+        if spec.cond_dim:
+            self.film = nn.ModuleList(nn.Linear(spec.cond_dim, 2 * h) for h in config.hidden)
+            for f in self.film:  # identity at initialisation: the condition's effect is learnt
+                nn.init.zeros_(f.weight)
+                nn.init.zeros_(f.bias)
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        """The head's parameters for ``obs [B, n_obs, obs_dim]``: mse the chunk ``[B, H, A]``, else ``[B, head.width]``."""
-        return self.head.outputs(self.net(obs.reshape(obs.shape[0], -1)))
+    def forward(self, obs: torch.Tensor | dict[str, torch.Tensor]) -> torch.Tensor:
+        """The head's parameters for ``obs [B, n_obs, obs_dim]`` (with a condition: ``{"state": that, "condition":
+        [B, cond_dim]}``): mse the chunk ``[B, H, A]``, else ``[B, head.width]``."""
+        if self.film is None:
+            return self.head.outputs(self.net(obs.reshape(obs.shape[0], -1)))
+        x, c = obs[STATE], obs[CONDITION]
+        x = x.reshape(x.shape[0], -1)
+        films = iter(self.film)
+        for i, layer in enumerate(self.net):
+            x = layer(x)
+            if i in self.film_at:
+                gamma, beta = next(films)(c).chunk(2, dim=-1)
+                x = x * (1.0 + gamma) + beta
+        return self.head.outputs(x)
 
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         keep = None if self.config.loss_on_pad or self.spec.horizon == 1 else ~action_pad

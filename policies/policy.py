@@ -49,6 +49,9 @@ class PolicySpec:
     # ids per instruction; 0 = none.
     vocab: int = 0
     max_tokens: int = 0
+    # A conditioning vector per sample (the instruction's) that a policy taking one (``takes_condition``)
+    # modulates its hidden layers with (FiLM); 0 = none.
+    cond_dim: int = 0
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items() if k != "images"}
@@ -56,6 +59,8 @@ class PolicySpec:
             d["images"] = [list(i) for i in self.images]
         if not self.vocab:
             del d["vocab"], d["max_tokens"]
+        if not self.cond_dim:
+            del d["cond_dim"]
         return d
 
     @classmethod
@@ -69,6 +74,9 @@ class Policy(nn.Module):
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = type(None)
+    # Whether the policy takes a conditioning vector (``spec.cond_dim``) beside its observation, as
+    # ``{"state": obs, "condition": vector}`` (demo.policies.instruction); else it is appended to the observation.
+    takes_condition: ClassVar[bool] = False
 
     def __init__(self, spec: PolicySpec, config: Any):
         super().__init__()
@@ -156,7 +164,9 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
     if spec.vocab:
         from demo.policies.instruction import InstructedPolicy, text_config  # deferred: cycle (it imports this module)
 
-        return InstructedPolicy(spec, config, text_config(text), lambda inner: build_policy(name, inner, config, encoder))
+        text = text_config(text)
+        film = cls.takes_condition and not spec.images and text.film
+        return InstructedPolicy(spec, config, text, lambda inner: build_policy(name, inner, config, encoder), film)
     if spec.images:
         from demo.policies.visuomotor import VisuomotorPolicy, encoder_config  # deferred: cycle (visuomotor imports this module)
 
