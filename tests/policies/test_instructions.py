@@ -182,3 +182,28 @@ def test_stores_of_different_tasks_mix_into_one_policy_with_weights(dots: Path, 
     one_line_error(["train", "--mix", f"{red}", "--out", str(tmp_path / "x")], "--mix", "STORE=WEIGHT")
     one_line_error(["train", red, blue, "--no-instructions", "--out", str(tmp_path / "x")], "blue.zarr",
                    "unless every episode carries an instruction")
+
+
+def test_bc_takes_the_instruction_by_film_and_other_policies_appended() -> None:
+    """BC's MLP on state: FiLM in its hidden layers (the identity at initialisation, so the words' effect is
+    learnt); film=false and every other policy: the vector appended to the observation."""
+    import torch
+
+    from demo.policies.instruction import CONDITION, INSTRUCTION
+    from demo.policies.policy import PolicySpec, build_policy
+
+    spec = PolicySpec(5, 2, 1, 4, vocab=12, max_tokens=3)
+    torch.manual_seed(0)
+    film = build_policy("bc", spec, {"hidden": (16, 16)})
+    assert film.film and film.inner.spec.obs_dim == 5 and film.inner.spec.cond_dim == 64
+    appended = build_policy("bc", spec, {"hidden": (16, 16)}, text={"film": "false"})
+    assert not appended.film and appended.inner.spec.obs_dim == 5 + 64
+    assert not build_policy("flow", spec, {"width": 16, "depth": 1}).film
+    obs = {"state": torch.randn(3, 1, 5), INSTRUCTION: torch.tensor([[2, 3, 0], [4, 0, 0], [2, 3, 0]])}
+    conditioned = film.condition(obs)
+    assert torch.equal(conditioned[CONDITION][0], conditioned[CONDITION][2])  # one instruction, one vector
+    plain = {"state": obs["state"]}
+    with torch.no_grad():  # zero-initialised FiLM: the MLP's output does not depend on the words yet
+        a = film.inner(conditioned)
+        b = film.inner.head.outputs(film.inner.net(plain["state"].reshape(3, -1)))
+    assert torch.allclose(a, b)
