@@ -281,15 +281,21 @@ def _process_map(init: Callable[..., None], init_args: Sequence[Any], run: Calla
                         raise value
                     held[slot].remove(i)
                     done[i] = value
-                batch = []
-                while committed in done:
-                    batch.append(done.pop(committed))
-                    committed += 1
+                batch = _next_in_order(done, committed)
+                committed += len(batch)
                 if batch:
                     yield batch
             finished = True
         finally:
             _stop(procs, pipes, politely=finished)
+
+
+def _next_in_order(done: dict[int, Any], committed: int) -> list[Any]:
+    """The results from job ``committed`` on that are back without a gap, taken out of ``done``."""
+    batch = []
+    while committed + len(batch) in done:
+        batch.append(done.pop(committed + len(batch)))
+    return batch
 
 
 def _stop(procs: list[Any], pipes: list[Any], politely: bool) -> None:
@@ -430,10 +436,8 @@ def _ray_map(init: Callable[..., None], init_args: Sequence[Any], run: Callable[
                         held[slot].remove(i)
                 for slot, exc in died.items():
                     replace_actor(slot, exc)
-                batch = []
-                while committed in done:
-                    batch.append(done.pop(committed))
-                    committed += 1
+                batch = _next_in_order(done, committed)
+                committed += len(batch)
                 if batch:
                     yield batch
         finally:

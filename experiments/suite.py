@@ -89,10 +89,21 @@ def task_list(c: SuiteConfig) -> list[str]:
     return [t for t in tasks if not c.tasks or t in c.tasks]
 
 
-def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str, Any]:
-    """Collect, train and evaluate one task (reused when its result is there for the same configuration)."""
+def train_and_evaluate(c: SuiteConfig, folder: Path, given: dict[str, Any], evaluating: Callable[[], None]
+                       ) -> tuple[dict[str, Any], dict[str, Any], float]:
+    """BC on ``folder/demos.zarr`` (``given`` over the suite's chunking) into ``folder/bc``, then ``demo eval`` of it:
+    the training summary, the evaluation and the time training ended."""
     from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
 
+    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
+                                               seed=c.seed, chunk=c.chunk, ensemble=c.chunk > 1, **given), overwrite=True)
+    trained = time.perf_counter()
+    evaluating()
+    return train, evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers)), trained
+
+
+def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str, Any]:
+    """Collect, train and evaluate one task (reused when its result is there for the same configuration)."""
     adapter, _ = SUITES[c.suite]
     folder = Path(c.out) / task
     done = folder / "result.json"
@@ -112,12 +123,7 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
                                  overwrite=True)
     t1 = time.perf_counter()
     log(f"{task}: train BC on {collected.successes} successful demos")
-    given: dict[str, Any] = {"steps": c.steps, "chunk": c.chunk, "ensemble": c.chunk > 1}
-    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
-                                               seed=c.seed, **given), overwrite=True)
-    t2 = time.perf_counter()
-    log(f"{task}: evaluate {c.episodes}")
-    result = evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers))
+    train, result, t2 = train_and_evaluate(c, folder, {"steps": c.steps}, lambda: log(f"{task}: evaluate {c.episodes}"))
     t3 = time.perf_counter()
     out = {
         "task": task,
@@ -137,7 +143,6 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
     """Collect the whole set into one store, train one policy on it (told each task by its instruction unless
     ``instructions`` is off), evaluate it on every task: ``tasks``, per-task rows as :func:`run_task` gives
     them, with the training summary and times (reused when its result is there for the same configuration)."""
-    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
     from demo.store import EpisodeStore
 
     adapter, name = SUITES[c.suite]
@@ -156,13 +161,8 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
                                    task_options=options), folder / "demos.zarr", workers=c.workers, overwrite=True)
     t1 = time.perf_counter()
     log(f"{name}: train one BC policy" + (" on the instructions" if c.instructions else " without instructions"))
-    given: dict[str, Any] = {"steps": c.steps or ONE_POLICY_STEPS, "chunk": c.chunk, "ensemble": c.chunk > 1,
-                             "instructions": c.instructions}
-    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
-                                               seed=c.seed, **given), overwrite=True)
-    t2 = time.perf_counter()
-    log(f"{name}: evaluate {c.episodes} per task")
-    result = evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers))
+    train, result, t2 = train_and_evaluate(c, folder, {"steps": c.steps or ONE_POLICY_STEPS, "instructions": c.instructions},
+                                           lambda: log(f"{name}: evaluate {c.episodes} per task"))
     t3 = time.perf_counter()
     with EpisodeStore.open(folder / "demos.zarr") as store:
         member, success = store.column("task").tolist(), store.column("success").astype(bool)

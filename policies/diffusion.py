@@ -52,8 +52,9 @@ DENOISERS = ("unet", "mlp")
 
 
 @dataclass
-class DiffusionConfig:
-    """The diffusion policy's hyperparameters (``--policy-opt name=value``)."""
+class DenoiserConfig:
+    """The network that maps a noisy chunk, a time and the observation to a chunk-shaped output: the
+    diffusion policy's denoiser, flow matching's velocity field (:mod:`demo.policies.flow`)."""
 
     # mlp: residual MLP over the flattened chunk (demo.policies.denoiser_mlp) | unet: the published
     # conditional 1D temporal UNet (demo.policies.unet1d). On pick (100 demos, one CPU core) the MLP,
@@ -67,6 +68,29 @@ class DiffusionConfig:
     step_embed_dim: int = 128  # sinusoidal timestep embedding (published: 256)
     kernel: int = 5
     groups: int = 8  # GroupNorm groups
+
+    def __post_init__(self) -> None:
+        if self.denoiser not in DENOISERS:
+            raise ValueError(f"denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
+        if self.width < 1 or self.depth < 0:
+            raise ValueError(f"width must be >= 1 and depth >= 0, got {self.width}, {self.depth}")
+        self.channels = tuple(int(c) for c in self.channels)
+        if not self.channels or min(self.channels) < 1:
+            raise ValueError(f"channels must be positive, got {self.channels}")
+        if any(c % self.groups for c in self.net_channels):
+            raise ValueError(f"every channel count must be divisible by groups={self.groups}: {self.net_channels}")
+        if self.step_embed_dim < 2 or self.step_embed_dim % 2:
+            raise ValueError(f"step_embed_dim must be even and >= 2, got {self.step_embed_dim}")
+
+    @property
+    def net_channels(self) -> tuple[int, ...]:
+        return LARGE if self.large else self.channels
+
+
+@dataclass
+class DiffusionConfig(DenoiserConfig):
+    """The diffusion policy's hyperparameters (``--policy-opt name=value``): its denoiser's, then these."""
+
     train_steps: int = 100  # DDPM timesteps (published: 100)
     # What the network predicts. "sample" (x0) rather than the published "epsilon": after minutes of
     # training, epsilon's x0 estimate at the first DDIM steps (its error amplified ~2000x at t = 99)
@@ -80,15 +104,7 @@ class DiffusionConfig:
     jit: bool = True  # trace + freeze the denoiser for inference (same numbers, ~1.5-2x faster at batch 1)
 
     def __post_init__(self) -> None:
-        if self.denoiser not in DENOISERS:
-            raise ValueError(f"denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
-        if self.width < 1 or self.depth < 0:
-            raise ValueError(f"width must be >= 1 and depth >= 0, got {self.width}, {self.depth}")
-        self.channels = tuple(int(c) for c in self.channels)
-        if not self.channels or min(self.channels) < 1:
-            raise ValueError(f"channels must be positive, got {self.channels}")
-        if any(c % self.groups for c in self.net_channels):
-            raise ValueError(f"every channel count must be divisible by groups={self.groups}: {self.net_channels}")
+        super().__post_init__()
         if self.prediction not in PREDICTIONS:
             raise ValueError(f"prediction must be one of {', '.join(PREDICTIONS)}, got {self.prediction!r}")
         if self.sampler not in SAMPLERS:
@@ -101,18 +117,11 @@ class DiffusionConfig:
             raise ValueError(f"inference_steps must lie in [1, train_steps={self.train_steps}], got {self.inference_steps}")
         if self.clip_sample < 0:
             raise ValueError(f"clip_sample must be >= 0, got {self.clip_sample}")
-        if self.step_embed_dim < 2 or self.step_embed_dim % 2:
-            raise ValueError(f"step_embed_dim must be even and >= 2, got {self.step_embed_dim}")
-
-    @property
-    def net_channels(self) -> tuple[int, ...]:
-        return LARGE if self.large else self.channels
 
 
-def make_denoiser(spec: PolicySpec, config: Any) -> ConditionalUnet1D | MLPDenoiser:
-    """The denoiser ``config`` names (its ``denoiser``, ``width``, ``depth``, ``net_channels``, ``step_embed_dim``,
-    ``kernel``, ``groups``) for chunks of ``spec``, conditioned on the flattened observation history; also
-    flow matching's velocity network (:mod:`demo.policies.flow`)."""
+def make_denoiser(spec: PolicySpec, config: DenoiserConfig) -> ConditionalUnet1D | MLPDenoiser:
+    """The denoiser ``config`` describes for chunks of ``spec``, conditioned on the flattened observation
+    history; also flow matching's velocity network (:mod:`demo.policies.flow`)."""
     cond_dim = spec.n_obs * spec.obs_dim
     if config.denoiser == "mlp":
         return MLPDenoiser(spec.action_dim, spec.horizon, cond_dim, config.width, config.depth, config.step_embed_dim)

@@ -28,9 +28,8 @@ from typing import Any
 import torch
 from torch.nn import functional as F
 
-from demo.policies.diffusion import DENOISERS, make_denoiser
+from demo.policies.diffusion import DenoiserConfig, make_denoiser
 from demo.policies.policy import Policy, PolicySpec, register_policy
-from demo.policies.unet1d import LARGE, SMALL
 
 TIME_SCALE = 100.0  # t in [0, 1] -> the embedding's input in [0, 100] (diffusion: timesteps 0..99)
 TIME_SAMPLING = ("beta", "uniform")
@@ -38,38 +37,19 @@ TIME_SAMPLING = ("beta", "uniform")
 
 # ================================================================================== 1. config
 @dataclass
-class FlowConfig:
-    """The flow-matching policy's hyperparameters (``--policy-opt name=value``)."""
+class FlowConfig(DenoiserConfig):
+    """The flow-matching policy's hyperparameters (``--policy-opt name=value``): its velocity network's
+    (the diffusion policy's denoiser, :class:`~demo.policies.diffusion.DenoiserConfig`), then these."""
 
-    denoiser: str = "mlp"  # mlp: residual MLP over the flattened chunk | unet: the conditional 1D UNet
-    channels: tuple[int, ...] = SMALL
-    large: bool = False
-    width: int = 512
-    depth: int = 3
-    step_embed_dim: int = 128
-    kernel: int = 5
-    groups: int = 8
     time_sampling: str = "beta"  # beta (pi0: more noisy times) | uniform
     inference_steps: int = 10  # Euler steps per chunk (pi0: 10)
 
     def __post_init__(self) -> None:
-        if self.denoiser not in DENOISERS:
-            raise ValueError(f"denoiser must be one of {', '.join(DENOISERS)}, got {self.denoiser!r}")
-        if self.width < 1 or self.depth < 0:
-            raise ValueError(f"width must be >= 1 and depth >= 0, got {self.width}, {self.depth}")
-        self.channels = tuple(int(c) for c in self.channels)
-        if not self.channels or min(self.channels) < 1 or any(c % self.groups for c in self.net_channels):
-            raise ValueError(f"channels must be positive multiples of groups={self.groups}: {self.net_channels}")
+        super().__post_init__()
         if self.time_sampling not in TIME_SAMPLING:
             raise ValueError(f"time_sampling must be one of {', '.join(TIME_SAMPLING)}, got {self.time_sampling!r}")
         if not 1 <= self.inference_steps <= 1000:
             raise ValueError(f"inference_steps must lie in [1, 1000], got {self.inference_steps}")
-        if self.step_embed_dim < 2 or self.step_embed_dim % 2:
-            raise ValueError(f"step_embed_dim must be even and >= 2, got {self.step_embed_dim}")
-
-    @property
-    def net_channels(self) -> tuple[int, ...]:
-        return LARGE if self.large else self.channels
 
 
 # ================================================================================== 2-3. the policy
