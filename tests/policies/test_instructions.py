@@ -207,3 +207,22 @@ def test_bc_takes_the_instruction_by_film_and_other_policies_appended() -> None:
         a = film.inner(conditioned)
         b = film.inner.head.outputs(film.inner.net(plain["state"].reshape(3, -1)))
     assert torch.allclose(a, b)
+
+
+def test_a_tampered_instruction_record_is_refused_in_one_line(dots: Path, tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch, one_line_error) -> None:
+    """run.json is untrusted: a tokenizer that does not parse, or whose vocabulary disagrees with the policy's
+    spec, is one line naming the file; nothing is unpickled or executed."""
+    monkeypatch.syspath_prepend(str(dots))
+    assert train(dots, tmp_path / "run", "--steps", "20") == 0
+    path = tmp_path / "run" / "run.json"
+    run = json.loads(path.read_text())
+    broken = json.loads(json.dumps(run))
+    broken["policy"]["instruction"]["tokenizer"] = {"model": {"type": "Nothing"}}
+    path.write_text(json.dumps(broken))
+    one_line_error(["eval", str(tmp_path / "run"), "--episodes", "1"], "run.json", "malformed policy record",
+                   "tokenizer does not read")
+    grown = json.loads(json.dumps(run))
+    grown["policy"]["spec"]["vocab"] += 1
+    path.write_text(json.dumps(grown))
+    one_line_error(["eval", str(tmp_path / "run"), "--episodes", "1"], "run.json", "does not match the policy's spec")
