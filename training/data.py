@@ -408,6 +408,9 @@ class Windows:
         if data.mix and len(data.sources) > 1:
             starts = np.concatenate([[0], data.ends[:-1]])
             for source, weight in zip(data.sources, data.mix):
+                if not source.episodes:  # an empty store: no windows to draw
+                    self.mix.append((weight, self.sampler.indices[:0]))
+                    continue
                 lo, hi = starts[source.first_episode], data.ends[source.first_episode + source.episodes - 1]
                 self.mix.append((weight, self.sampler.indices[(self.sampler.indices >= lo) & (self.sampler.indices < hi)]))
 
