@@ -8,7 +8,7 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.options import (address_option, env_opt_option, env_option, executor_option, json_option, overwrite_option,
-                              parse_env_opts, robot_option, task_opt_option)
+                              robot_option, target_options, task_opt_option)
 from demo.cli.output import kv_table, report_console, warn, write_json
 from demo.cli.progress import bars
 from demo.collect.kinesthetic import collect_kinesthetic
@@ -22,10 +22,6 @@ from demo.sim.render import parse_camera
 from demo.store.instructions import check_instruction
 
 SOURCES = ("scripted", "kinesthetic", "vr")
-
-
-def task_options(blocks: int | None) -> dict:
-    return {} if blocks is None else {"blocks": blocks}
 
 
 @app.command()
@@ -99,10 +95,7 @@ def collect(
     if (expert is not None or env_opt) and env is None:
         raise DemoError("--expert" if expert is not None else "--env-opt", "applies to a Gymnasium environment (--env)")
     robot_config = str(robot) if robot else None
-    if task_opt and env is not None:
-        raise DemoError("--task-opt", "sets an option of --task; an environment's are --env-opt")
-    options = parse_env_opts(env_opt) if env is not None else {**task_options(blocks),
-                                                                 **parse_env_opts(task_opt, "--task-opt")}
+    options = target_options(env, env_opt, task_opt, blocks)
     task = task_name(env) if env is not None else task
     with bars() as progress:  # the library ticks only once the store is open
         if source == "scripted":

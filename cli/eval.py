@@ -10,7 +10,7 @@ import typer
 
 from demo.cli.main import app
 from demo.cli.options import (address_option, device_option, env_opt_option, env_option, executor_option, json_option,
-                              parse_env_opts, robot_option, run_argument, task_opt_option)
+                              robot_option, run_argument, target_options, task_opt_option)
 from demo.errors import DemoError
 from demo.seeds import eval_seeds
 from demo.sim.foreign import task_name
@@ -72,10 +72,9 @@ def eval_(
         raise DemoError("--env", "names the environment to evaluate on: --task and --blocks do not apply")
     if env_opt and env is None:
         raise DemoError("--env-opt", "sets an option of --env")
-    if task_opt and env is not None:
-        raise DemoError("--task-opt", "sets an option of the task; an environment's are --env-opt")
-    given = {**({} if blocks is None else {"blocks": blocks}), **parse_env_opts(task_opt, "--task-opt")}
-    options = parse_env_opts(env_opt) if env is not None else given or None
+    options: dict | None = target_options(env, env_opt, task_opt, blocks)
+    if env is None and not options:
+        options = None  # none given: the trained task's (an environment given without options gets none)
     config = EvalConfig(
         run=str(run), task=task_name(env) if env is not None else task, task_options=options,
         robot=robot or None, episodes=episodes, seed=seed, workers=workers, executor=executor, address=address,

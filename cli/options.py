@@ -87,6 +87,16 @@ def task_opt_option() -> Any:
                         "episode's instruction.", show_default="the task's defaults")
 
 
+def target_options(env: str | None, env_opt: list[str], task_opt: list[str], blocks: int | None) -> dict[str, Any]:
+    """The options of what a command runs: an environment's (``--env-opt``), else the task's (``--blocks``,
+    ``--task-opt``)."""
+    if task_opt and env is not None:
+        raise DemoError("--task-opt", "sets an option of --task; an environment's are --env-opt")
+    if env is not None:
+        return parse_env_opts(env_opt)
+    return {**({} if blocks is None else {"blocks": blocks}), **parse_env_opts(task_opt, "--task-opt")}
+
+
 def parse_env_opts(items: list[str], flag: str = "--env-opt") -> dict[str, Any]:
     """``--env-opt KEY=VALUE`` items as keyword arguments (a value that parses as JSON is that value)."""
     opts: dict[str, Any] = {}

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from demo.policies.observation import STATE
-from demo.policies.policy import Policy, PolicySpec
+from demo.policies.policy import Policy, PolicySpec, parse_flag
 
 INSTRUCTION = "instruction"  # the token ids' entry in an observation dict
 CONDITION = "condition"  # the instruction's vector, for a policy that takes it by FiLM (Policy.takes_condition)
@@ -127,11 +127,7 @@ def text_config(options: TextConfig | dict[str, Any] | None) -> TextConfig:
 
 
 def _flag(value: Any) -> bool:
-    if isinstance(value, bool):
-        return value
-    if str(value).lower() not in ("1", "0", "true", "false", "yes", "no"):
-        raise ValueError(f"the text encoder's film must be true or false, got {value!r}")
-    return str(value).lower() in ("1", "true", "yes")
+    return value if isinstance(value, bool) else parse_flag(str(value))
 
 
 class TextEncoder(nn.Module):

@@ -23,10 +23,9 @@ import torch
 from torch import nn
 
 from demo.policies.heads import GMM_OBJECTIVES, HEADS, ChunkHead, make_head
+from demo.policies.instruction import CONDITION
 from demo.policies.observation import STATE
 from demo.policies.policy import Policy, PolicySpec, register_policy
-
-CONDITION = "condition"  # = demo.policies.instruction.CONDITION (that module imports this one's registry)
 
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU, "mish": nn.Mish, "silu": nn.SiLU}
 

@@ -178,13 +178,18 @@ def config_to_json(config: Any) -> dict[str, Any]:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(config).items()}
 
 
+def parse_flag(text: str) -> bool:
+    """An option's on/off value written as text: 1/true/yes or 0/false/no (ValueError otherwise)."""
+    if text.lower() not in ("1", "0", "true", "false", "yes", "no"):
+        raise ValueError(f"{text!r} is not true or false")
+    return text.lower() in ("1", "true", "yes")
+
+
 def _parse(text: str, field: dataclasses.Field, owner: type) -> Any:
     default = getattr(owner(), field.name)
     try:
         if isinstance(default, bool):
-            if text.lower() not in ("1", "0", "true", "false", "yes", "no"):
-                raise ValueError(text)
-            return text.lower() in ("1", "true", "yes")
+            return parse_flag(text)
         if isinstance(default, int):
             return int(text)
         if isinstance(default, float):

@@ -274,7 +274,7 @@ class Env:
     def instruction(self) -> str:
         """What this episode asks for in words ("" for a task that says nothing: demo.sim.pick's ``colours``
         variants name their target)."""
-        return str(getattr(self.task, "instruction", ""))
+        return self.task.instruction
 
     # ------------------------------------------------------------------ observations
     def observe(self) -> dict[str, np.ndarray]:

@@ -40,6 +40,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.store import ActionSpec, FeatureSpec
+from demo.store.instructions import normalized
 
 ENV_PREFIX = "env:"  # a store's task name for a foreign environment: env:<id or module:factory>
 ACTION_NAME = "env"  # the action representation: the environment's own command
@@ -107,7 +108,7 @@ def instruction_of(name: str, env: gymnasium.Env) -> str:
     else its adapter's ``instruction(TASK)`` (Meta-World's task as a sentence); "" when neither says."""
     own = getattr(env.unwrapped, "instruction", None)
     if isinstance(own, str) and own.strip():
-        return " ".join(own.split())
+        return normalized(own)
     module, _, task = name.removeprefix(ENV_PREFIX).rpartition(":")
     if module in ADAPTERS:
         described = getattr(importlib.import_module(ADAPTERS[module].partition(":")[0]), "instruction", None)

@@ -88,7 +88,6 @@ class Pick(Task):
             raise DemoError("pick", f"phrasing must be one of {', '.join(PHRASINGS)}, got {self.options['phrasing']!r}")
         self.names = ["cube"] if not self.colours else [f"cube_{c}" for c in list(COLOURS)[: self.colours]]
         self.target = 0  # which cube (index into names) the episode asks for
-        self.instruction = ""
 
     @property
     def horizon(self) -> int:

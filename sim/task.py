@@ -46,6 +46,9 @@ class Task:
     # Options that change only how an episode's instruction is worded, not the scene: a policy trained with
     # one value may be evaluated with another (held-out paraphrases).
     wording_options: ClassVar[tuple[str, ...]] = ()
+    # What the current episode asks for in words ("" for a task whose goal the scene shows; demo.sim.pick's
+    # coloured cubes name their target here at each reset)
+    instruction: str = ""
 
     def __init__(self, **options: Any):
         unknown = sorted(set(options) - set(self.defaults))

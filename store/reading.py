@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import zlib
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from zarr.core.sync import sync
 from demo.errors import DemoError, first_line
 from demo.store import episode_table
 from demo.store.image_bytes import camera_bytes
+from demo.store.instructions import episode_instructions
 from demo.store.layout import IMAGE_PREFIX, TABLE_FILE
 from demo.store.location import StorePath
 from demo.store.spec import StoreMeta
@@ -236,8 +238,7 @@ class StoreReading:
             "operators": counts("operator") if self.num_episodes else {},
             "tasks": counts("task") if self.num_episodes else {},  # per-episode task (several in a task set's store)
             # what the episodes were told to do, in words (demo.store.instructions; none: {})
-            "instructions": {text: n for text, n in counts("instruction").items() if text != "None"}
-            if "instruction" in t.column_names else {},
+            "instructions": dict(sorted(Counter(text for text in episode_instructions([self]) if text).items())),
             "masks": {name: int(self.mask(name).sum()) for name in self.mask_names()},
             "camera_bytes": camera_bytes({k: (self.array(k), self._dir / "data" / k) for k in self.meta.features
                                           if k.startswith(IMAGE_PREFIX)}, self.num_frames),
