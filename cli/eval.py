@@ -63,10 +63,14 @@ def eval_(
     level: str = typer.Option("0..3", "--level", metavar="N|A..B", help="--shift: the level(s), 0 (none) to 3."),
     plot: Path = typer.Option(None, "--plot", metavar="PNG", help="--shift: success against level, one line per "
                               "shift.", show_default="no figure"),
+    min_success: float = typer.Option(None, "--min-success", metavar="P", min=0.0, max=1.0,
+                                      help="Exit non-zero below this success rate (a fraction), after the results are "
+                                           "shown and written.", show_default="none; 0% on a robot the policy was not "
+                                           "trained on always fails"),
     json_out: str = json_option("the result"),
 ) -> None:
     """Success rate (95% Wilson interval), mean length and failure breakdown of a trained policy."""
-    from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.evaluation.evaluate import EvalConfig, evaluate, judge_success  # deferred: torch stays out of demo --help
 
     if env is not None and (task is not None or blocks is not None):
         raise DemoError("--env", "names the environment to evaluate on: --task and --blocks do not apply")
@@ -81,6 +85,8 @@ def eval_(
         execute=execute, ensemble=ensemble, candidates=candidates, video=str(video) if video else None, device=device, video_episodes=video_episodes, video_size=video_size,
         record=record, instruction=instruction,
     )
+    if shift and min_success is not None:
+        raise DemoError("--min-success", "judges one evaluation: --shift evaluates many cells")
     if shift:
         _shift_suite(config, shift, level, plot, json_out)
         return
@@ -119,6 +125,7 @@ def eval_(
              ", ".join(f"{k}: {v}" for k, v in sorted(r["failures"].items())) or "none")
             for name, r in result["per_task"].items()]))
     write_json(result, json_out)
+    judge_success(result, min_success)
 
 
 def _shift_suite(config: "EvalConfig", shifts: list[str], level: str, plot: Path | None, json_out: str) -> None:

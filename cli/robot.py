@@ -68,6 +68,10 @@ def robot_init(
                                  help="A parallel gripper in its own MJCF, for an arm file without one.", show_default="none"),
     mount: str = typer.Option(None, "--mount", metavar="BODY", help="The arm body --gripper mounts on.",
                               show_default="the last body of the arm's chain"),
+    arm_prefix: str = typer.Option(None, "--arm-prefix", metavar="PREFIX",
+                                   help="A file with several arms (a bimanual scene): the arm whose top-level body's "
+                                        "name starts with PREFIX; the file's other bodies are left out.",
+                                   show_default="the file holds one arm"),
     png: Path = typer.Option(None, "--png", metavar="FILE", help="Write the robot at home in the pick scene.",
                              show_default="no picture"),
     overwrite: bool = overwrite_option("an existing --out"),
@@ -76,7 +80,7 @@ def robot_init(
     """Guess a robot config for an arm's MJCF: arm joints, gripper actuators and range, EE site, home, base position."""
     if mount is not None and gripper is None:
         raise DemoError(mjcf, "--mount names the arm body for --gripper; pass --gripper GRIPPER_MJCF too")
-    report = init_robot(mjcf, out=out, gripper=gripper, mount=mount, png=png, overwrite=overwrite)
+    report = init_robot(mjcf, out=out, gripper=gripper, mount=mount, png=png, overwrite=overwrite, arm_prefix=arm_prefix)
     shown = report_console(json_out)
     shown.print(table(f"joints of {Path(report.mjcf).name}", ["joint", "type", "range", "body", "role"],
                       [(j["name"], j["type"], "-" if j["range"] is None else f"{j['range'][0]:.4g} .. {j['range'][1]:.4g}",

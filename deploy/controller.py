@@ -7,8 +7,9 @@ waits for it. Each control step executes the merge of every chunk that covers th
 ``s .. s + H - 1``; overlapping ones are averaged with ACT's weights ``exp(-m * age)``, the oldest
 heaviest), so a slow answer only means the older chunks carry on. Then :class:`Safety`: joint
 targets within the joint limits, at most ``max_joint_step`` rad from the last command per step,
-the gripper within [0, 1]; no chunk covering the step, or an observation older than ``stale_obs_s``,
-holds the last command (and counts a stall). ``synchronous``: the baseline a robot that waits for its
+the gripper within [0, 1], and the end effector at those targets inside the workspace box (scene
+frame, m; else the arm holds its last command); no chunk covering the step, or an observation older
+than ``stale_obs_s``, holds the last command (and counts a stall). ``synchronous``: the baseline a robot that waits for its
 policy gets, each step's own chunk awaited before the step's merged action is sent.
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,17 +140,28 @@ class ChunkRequester:
 
 @dataclass
 class Safety:
-    """Limits every command obeys (module docstring); ``limits`` [n_arm, 2] rad."""
+    """Limits every command obeys (module docstring); ``limits`` [n_arm, 2] rad. ``workspace`` ([2, 3]: the
+    lowest and highest corner, scene frame, m) with ``ee_position`` (arm joint targets -> the end effector's
+    position there, the client's own kinematic model of the arm): a command that would take the end
+    effector out of the box keeps the arm where the last command had it (the gripper still obeys)."""
 
     limits: np.ndarray
     max_joint_step: float
-    clipped: int = 0
+    workspace: np.ndarray | None = None
+    ee_position: Callable[[np.ndarray], np.ndarray] | None = None
+    clipped: int = 0  # commands these limits changed
+    outside: int = 0  # ... of which held because of the workspace
 
     def __call__(self, action: np.ndarray, last: np.ndarray) -> np.ndarray:
         a = np.array(action, dtype=np.float64)
         n = len(self.limits)
         arm = np.clip(a[:n], self.limits[:, 0], self.limits[:, 1])
         arm = last[:n] + np.clip(arm - last[:n], -self.max_joint_step, self.max_joint_step)
+        if self.workspace is not None and self.ee_position is not None:
+            ee = self.ee_position(arm)
+            if np.any(ee < self.workspace[0]) or np.any(ee > self.workspace[1]):
+                arm = np.array(last[:n], dtype=np.float64)
+                self.outside += 1
         grip = np.clip(a[n:], 0.0, 1.0)
         out = np.r_[arm, grip]
         self.clipped += int(not np.allclose(out, a))
@@ -162,6 +175,7 @@ class EpisodeReport:
     steps: int
     stalls: int  # control steps that held the last command (no chunk, or a stale observation)
     clipped: int  # commands the safety limits changed
+    outside: int = 0  # ... held because the end effector would have left the workspace
     latency_ms: list[float] = field(default_factory=list)
     overruns: int = 0  # control steps the loop itself started late by more than a period
 
@@ -176,7 +190,7 @@ def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: C
     step, t_obs, obs = robot.latest_obs
     last = np.r_[obs["obs.joint_pos"], obs["obs.gripper"]].astype(np.float64)
     stalls = overruns = steps = 0
-    safety.clipped = 0
+    safety.clipped = safety.outside = 0
     start_latencies = len(requester.latencies)
     t_next = time.perf_counter()
     while not robot.done:
@@ -207,5 +221,5 @@ def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: C
     robot.finish()
     if requester.error:
         raise DemoError("policy server", requester.error)
-    return EpisodeReport(seed, robot.success, steps, stalls, safety.clipped,
+    return EpisodeReport(seed, robot.success, steps, stalls, safety.clipped, safety.outside,
                          [1000 * x for x in requester.latencies[start_latencies:]], overruns)

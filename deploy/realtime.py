@@ -9,13 +9,13 @@ from typing import Any
 
 import numpy as np
 
+from demo.deploy.arm_model import ArmModel
 from demo.deploy.controller import ChunkMerger, ChunkRequester, ControlConfig, Safety, run_episode
 from demo.deploy.server import PolicyServer, ServerConfig
 from demo.deploy.sim_robot import SimRobot
 from demo.evaluation.evaluate import wilson_interval
 from demo.progress import Progress, Tick, or_silent
 from demo.seeds import eval_seeds
-from demo.sim.robot_model import joint_limits
 
 
 @dataclass
@@ -41,12 +41,8 @@ def run_realtime(config: RealtimeConfig, progress: Progress | None = None) -> di
     reports = []
     start = time.perf_counter()
     try:
-        from demo.sim import make_env  # the arm's joint limits, for the safety layer
-
-        probe = make_env(task, **options)
-        limits = joint_limits(probe.model, [probe.model.joint(j).id for j in probe.robot.arm_joints])
-        probe.close()
-        safety = Safety(limits, control.max_joint_step)
+        arm = ArmModel(task, options)  # the robot side's own model of the arm: limits and kinematics
+        safety = Safety(arm.limits, control.max_joint_step, arm.table_workspace(), arm.ee_position)
         for i, seed in enumerate(eval_seeds(config.seed, config.episodes)):
             reports.append(run_episode(robot, requester, safety, control, int(seed)))
             ok = sum(r.success for r in reports)
@@ -64,6 +60,7 @@ def run_realtime(config: RealtimeConfig, progress: Progress | None = None) -> di
         "round_trip_ms": {"median": float(np.median(latency)) if len(latency) else None,
                           "p95": float(np.percentile(latency, 95)) if len(latency) else None},
         "stall_steps": sum(r.stalls for r in reports), "steps": sum(r.steps for r in reports),
-        "clipped_commands": sum(r.clipped for r in reports), "loop_overruns": sum(r.overruns for r in reports),
+        "clipped_commands": sum(r.clipped for r in reports), "outside_workspace": sum(r.outside for r in reports),
+        "loop_overruns": sum(r.overruns for r in reports),
         "seconds": time.perf_counter() - start,
     }

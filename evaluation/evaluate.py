@@ -178,6 +178,21 @@ def robot_transfer(bundle: PolicyBundle, robot: Any) -> str | None:
             "run through that arm's IK")
 
 
+def judge_success(result: dict[str, Any], min_success: float | None = None) -> None:
+    """After an evaluation's results are written: raise a :class:`DemoError` naming the run when the policy succeeded
+    on none of its episodes on a robot it was not trained on (it cannot work that arm at all: its reach, its frames),
+    or below ``min_success`` (a fraction in [0, 1]; ``demo eval --min-success``). A policy's 0% on the robot it was
+    trained on is a result, not an error."""
+    if min_success is not None and not 0.0 <= min_success <= 1.0:
+        raise DemoError("--min-success", f"must be a fraction in [0, 1], got {min_success}")
+    run, n = result["run"], result["episodes"]
+    if result["successes"] == 0 and not result.get("robot_trained_on", True):
+        raise DemoError(run, f"succeeded on none of {n} episodes on robot {result['robot']!r}, which it was not trained "
+                             "on: check that arm with demo robot check (the results above are written)")
+    if min_success is not None and result["success_rate"] < min_success:
+        raise DemoError(run, f"success {result['success_rate']:.2f} < --min-success {min_success:g} over {n} episodes")
+
+
 def make_eval_env(bundle: PolicyBundle, task: str, options: dict[str, Any], robot: Any, cameras: Sequence[Any] = ()) -> Any:
     """The task's environment for ``bundle`` on ``robot`` (a ``RobotConfig``), rendering the cameras its
     policy reads (and ``cameras``); refuses a robot the policy cannot run on (:func:`robot_transfer`).

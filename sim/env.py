@@ -36,7 +36,7 @@ from demo.sim.foreign import ENV_PREFIX, ForeignEnv, is_foreign
 from demo.sim.foreign_set import ForeignEnvSet, set_members
 from demo.sim.geometry import canonical_f32, mat_to_quat, quat_conj, quat_mul, yaw_of
 from demo.sim.numeric import clip
-from demo.sim.randomize import Randomization, SceneRandomizer
+from demo.sim.randomize import Randomization, SceneRandomizer, corrupt_images
 from demo.sim.render import parse_cameras
 from demo.sim.robot import RobotConfig, arm_actuator_for, is_descendant, load_robot, position_gain
 from demo.sim.robot_model import joint_limits
@@ -313,6 +313,8 @@ class Env:
         self.task.observe(self, out)
         if self.cameras.specs:
             self.cameras.render(self.data, out)
+            if self.randomized:
+                corrupt_images(out, self.randomized, self.seed, float(self.data.time))
         return out
 
     def frame(self, obs: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:

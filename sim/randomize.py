@@ -14,9 +14,15 @@ Kinds and their amplitudes at levels 1, 2, 3 (:data:`AMPLITUDES`):
 - ``camera``: every camera moved by up to 1, 2, 4 cm per axis, turned by up to 2, 4, 8 deg about a
   random axis, its field of view changed by up to 2, 4, 8 deg.
 - ``texture``: the colour of every scene geom (table, floor, the task's objects and markers; not the
-  robot's) moved toward a random colour by 15, 30, 50% (their materials' colours too).
+  robot's) moved toward a random colour by up to 15, 30, 50% (``u`` in [0, 1]: the nominal colours
+  are part of what a randomised training set shows; their materials' colours too).
 - ``friction``: the sliding friction of every scene geom scaled by ``1 + 0.3, 0.55, 0.8 u``.
 X
+- ``noise``: Gaussian pixel noise on every camera image, its standard deviation up to 4, 8, 16 (of 255)
+  per episode (``u`` in [0, 1]); each frame's noise is drawn from the seed and the simulation time, so
+  a replay from the recorded states sees the same pixels.
+- ``blur``: every camera image blurred by a Gaussian of up to 0.5, 1.0, 1.5 px standard deviation per
+  episode (``u`` in [0, 1]), as an out-of-focus or moving camera.
 - ``latency``: a command takes effect 20, 40, 60 ms after it is given (in 2 ms physics substeps; a
   control step is 50 ms): the previous command acts until then, and the first hold the reset
   configuration. (The experts cope with 50 ms and fail at 100 ms.)
@@ -39,9 +45,10 @@ import numpy as np
 
 from demo.errors import DemoError
 
-KINDS = ("lighting", "camera", "texture", "friction", "mass", "latency")
+KINDS = ("lighting", "camera", "texture", "friction", "mass", "latency", "noise", "blur")
 MAX_LEVEL = 3
 RANDOMIZE_STREAM = 0xD0A1  # the seed stream of the draws (the task's reset uses the bare seed)
+PIXEL_NOISE_STREAM = 0xD0A2  # ... and of each frame's pixel noise (with the simulation time in ms)
 # kind -> per level 0..3: the amplitudes of its draws (module docstring)
 AMPLITUDES: dict[str, tuple[dict[str, float], ...]] = {
     "lighting": tuple({"scale": s, "turn_deg": t} for s, t in ((0, 0), (0.25, 10), (0.5, 20), (0.75, 35))),
@@ -51,6 +58,8 @@ AMPLITUDES: dict[str, tuple[dict[str, float], ...]] = {
     "friction": tuple({"scale": f} for f in (0, 0.3, 0.55, 0.8)),
     "mass": tuple({"log2": m} for m in (0, 0.5, 1, 1.5)),
     "latency": tuple({"ms": k} for k in (0, 20, 40, 60)),
+    "noise": tuple({"sigma": n} for n in (0, 4, 8, 16)),
+    "blur": tuple({"sigma_px": b} for b in (0, 0.5, 1.0, 1.5)),
 }
 PRESETS = {"light": 1, "medium": 2, "heavy": 3}
 
@@ -173,7 +182,7 @@ class SceneRandomizer:
 
     def _texture(self, rng: np.random.Generator, a: dict[str, float]) -> dict[str, Any]:
         m = self.model
-        mix = a["mix"] * rng.uniform(0.5, 1.0)
+        mix = a["mix"] * rng.uniform(0.0, 1.0)
         geoms = self.scene_geoms
         colours = rng.uniform(0, 1, (len(geoms), 3))
         m.geom_rgba[geoms, :3] = (1 - mix) * self.nominal["geom_rgba"][geoms, :3] + mix * colours
@@ -198,6 +207,43 @@ class SceneRandomizer:
 
     def _latency(self, rng: np.random.Generator, a: dict[str, float]) -> dict[str, Any]:
         return {"ms": float(a["ms"])}  # fixed per level: latency is the robot's, not the episode's
+
+    def _noise(self, rng: np.random.Generator, a: dict[str, float]) -> dict[str, Any]:
+        return {"sigma": float(a["sigma"] * rng.uniform(0.0, 1.0))}  # applied per frame: corrupt_images
+
+    def _blur(self, rng: np.random.Generator, a: dict[str, float]) -> dict[str, Any]:
+        return {"sigma_px": float(a["sigma_px"] * rng.uniform(0.0, 1.0))}
+
+
+def corrupt_images(images: dict[str, np.ndarray], drawn: dict[str, Any], seed: int, time_s: float) -> None:
+    """Blur, then add pixel noise to, every ``obs.image_*`` array (uint8 [H, W, 3]) in ``images``, in place,
+    as this episode's draws (``drawn``, :meth:`SceneRandomizer.apply`) say. The noise is a function of the
+    episode's seed and the simulation time (ms), so the same state at the same time looks the same."""
+    blur = drawn.get("blur", {}).get("sigma_px", 0.0)
+    sigma = drawn.get("noise", {}).get("sigma", 0.0)
+    if blur <= 0 and sigma <= 0:
+        return
+    rng = np.random.default_rng([int(seed), PIXEL_NOISE_STREAM, int(round(time_s * 1000))])
+    for key in sorted(k for k in images if k.startswith("obs.image_")):
+        image = images[key].astype(np.float32)
+        if blur > 0:
+            image = gaussian_blur(image, blur)
+        if sigma > 0:
+            image += rng.normal(0.0, sigma, image.shape).astype(np.float32)
+        images[key] = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """``image`` [H, W, C] (float) blurred by a separable Gaussian of ``sigma_px`` pixels (edges repeated)."""
+    radius = max(1, int(math.ceil(3 * sigma_px)))
+    offsets = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 * (offsets / sigma_px) ** 2)
+    weights /= weights.sum()
+    for axis in (0, 1):
+        padded = np.pad(image, [(radius, radius) if a == axis else (0, 0) for a in range(image.ndim)], mode="edge")
+        n = image.shape[axis]
+        image = sum(w * np.take(padded, np.arange(i, i + n), axis=axis) for i, w in enumerate(weights))
+    return image
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:

@@ -18,8 +18,8 @@ A robot config is a small TOML file (paths relative to it)::
     home = [0, 0, 0, -1.57, 0, 1.57, -0.785]  # home arm configuration (rad), for MJCFs without a keyframe
     gripper_mjcf = "hand.xml"                 # a gripper in its own MJCF (arm files without one) ...
     gripper_mount = "flange"                  #   ... attached to this arm body
-    gripper_prefix = "gripper/"               #   ... its names prefixed (where both files use a name); the
-                                              #   gripper's names in this file then carry the prefix
+    gripper_prefix = "hand/"                  #   ... its names prefixed (default: the file's stem and "/", so
+                                              #   names never clash; "" keeps them); names here may omit it
     gripper_actuators = ["left", "right"]     # instead of gripper_actuator: one actuator per finger
                                               #   (gripper_range then [open, closed] for all, or one pair each)
     base_pos = [0, 0, 0]                      # the base body's position in the scene frame (m; table top z = 0)
@@ -34,6 +34,15 @@ A robot config is a small TOML file (paths relative to it)::
                                               #   (models published without actuators; gains: pd_kp, pd_kd)
     max_joint_velocity = 2.0                  # rad/s, for the experts' IK (scalar or one per joint)
     wrist_camera = { pos = [0.05, 0, -0.05], target = [0, 0, 0.12], fovy = 80 }   # the `wrist` camera
+    arm_prefix = "vx300s_left/"               # a file with several arms (a bimanual scene): the one whose top-level
+                                              #   body is named so or starts with it; names here may omit it
+    keep_bodies = ["table"]                   #   ... the file's other top-level bodies kept (default: none)
+
+A file with several arms (gym-aloha's bimanual scenes: two ViperX arms, a table, a cube) runs one of
+them: ``arm_prefix`` keeps the top-level bodies of that arm, every other top-level body (the other
+arms, the file's table and objects) is left out unless ``keep_bodies`` names it, and so are the
+world's own lights, cameras, geoms and sites (the task scene brings its own) and every actuator of
+what was left out. Keyframes keep the values of the joints and actuators that remain.
 
 ``wrist_camera`` places the ``wrist`` camera (``demo collect --camera wrist@WxH``) on the EE site's
 body, in the **EE site frame** (m): ``pos`` its position, then either ``target`` (a point it looks
@@ -96,7 +105,7 @@ from demo.sim.robot_model import (
 # re-exported: callers import them from here.
 __all__ = [
     "ASSETS", "BUILTIN_CONFIG", "DEFAULT_WRIST_CAMERA", "PACKAGE_SCHEME", "RobotConfig", "WristCamera",
-    "config_keys", "load_robot", "mjcf_location", "robot_from_keys",
+    "config_keys", "default_gripper_prefix", "load_robot", "mjcf_location", "robot_from_keys",
     "arm_actuator_for", "home_qpos_vector", "is_descendant", "mujoco_message", "position_gain", "robot_spec",
 ]
 
@@ -111,7 +120,7 @@ _ONE_OF = (
 )
 _OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera",
              "gripper_actuator", "gripper_actuators", "home_key", "home", "base_pos", "base_quat", "pd_kp", "pd_kd",
-             "gripper_mjcf", "gripper_mount", "gripper_prefix", "add_actuators")
+             "gripper_mjcf", "gripper_mount", "gripper_prefix", "add_actuators", "arm_prefix", "keep_bodies")
 
 
 @dataclass(frozen=True)
@@ -158,6 +167,8 @@ class RobotConfig:
     gripper_mjcf: Path | None = None  # a separate gripper MJCF, attached to the arm at gripper_mount
     gripper_mount: str | None = None  # the arm body the gripper's root is attached to (its frame)
     gripper_prefix: str = ""  # prepended to every name of the gripper file when it is attached
+    arm_prefix: str = ""  # a file with several arms: the one whose top-level bodies' names start with it
+    keep_bodies: tuple[str, ...] = ()  # ... and the file's other top-level bodies kept
     add_actuators: bool = False  # a PD servo on every arm joint no actuator drives
     ee_site_body: str | None = None
     ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -254,6 +265,11 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         raise DemoError(where, f"'base_quat' must be a non-zero quaternion (wxyz), got {raw['base_quat']!r}")
     if "gripper_prefix" in raw and ("gripper_mjcf" not in raw or not isinstance(raw["gripper_prefix"], str)):
         raise DemoError(where, "'gripper_prefix' is a string prefixed to the names of gripper_mjcf's file (write both)")
+    if not isinstance(raw.get("arm_prefix", "x"), str) or raw.get("arm_prefix", "x") == "":
+        raise DemoError(where, "'arm_prefix' names the arm of a file with several (the start of its top-level body's name)")
+    keep = raw.get("keep_bodies", [])
+    if not isinstance(keep, list) or not all(isinstance(b, str) and b for b in keep) or (keep and "arm_prefix" not in raw):
+        raise DemoError(where, "'keep_bodies' is a list of the file's top-level bodies kept beside the arm of 'arm_prefix' (write both)")
     if ("gripper_mjcf" in raw) != ("gripper_mount" in raw):
         raise DemoError(where, "'gripper_mjcf' and 'gripper_mount' go together: write both (the gripper file and the arm body it mounts on)")
     gripper_mjcf = mjcf_location(str(raw["gripper_mjcf"]), base, where) if "gripper_mjcf" in raw else None
@@ -279,7 +295,9 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         pd_kd=pd["pd_kd"],
         gripper_mjcf=gripper_mjcf,
         gripper_mount=str(raw["gripper_mount"]) if "gripper_mount" in raw else None,
-        gripper_prefix=str(raw.get("gripper_prefix", "")),
+        gripper_prefix=str(raw.get("gripper_prefix", default_gripper_prefix(gripper_mjcf))),
+        arm_prefix=str(raw.get("arm_prefix", "")),
+        keep_bodies=tuple(keep),
         add_actuators=_flag(where, "add_actuators", raw.get("add_actuators", False)),
         ee_site_body=raw.get("ee_site_body"),
         ee_site_pos=_floats(where, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
@@ -289,6 +307,12 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         wrist_camera=_wrist_camera(where, raw.get("wrist_camera")),
     )
     return validated(robot)
+
+
+def default_gripper_prefix(gripper_mjcf: Path | None) -> str:
+    """The prefix a gripper file's names get by default: its file's stem and "/" (``robotiq_2f85/``), so that
+    names the arm's file also uses (sites, textures) never clash."""
+    return f"{gripper_mjcf.stem}/" if gripper_mjcf is not None else ""
 
 
 PACKAGE_SCHEME = "pkg://"
@@ -400,8 +424,12 @@ def config_keys(robot: RobotConfig, mjcf: str, gripper_mjcf: str | None = None) 
     if robot.gripper_mjcf is not None:
         keys["gripper_mjcf"] = gripper_mjcf
         keys["gripper_mount"] = robot.gripper_mount
-        if robot.gripper_prefix:
+        if robot.gripper_prefix != default_gripper_prefix(robot.gripper_mjcf):
             keys["gripper_prefix"] = robot.gripper_prefix
+    if robot.arm_prefix:
+        keys["arm_prefix"] = robot.arm_prefix
+    if robot.keep_bodies:
+        keys["keep_bodies"] = list(robot.keep_bodies)
     if robot.add_actuators:
         keys["add_actuators"] = True
     if robot.ee_site_body:

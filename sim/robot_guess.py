@@ -29,7 +29,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.sim.geometry import mat_to_quat
-from demo.sim.robot_model import position_gain
+from demo.sim.robot_model import inside_limits, position_gain
 
 HINGE, SLIDE = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
 MIN_ARM_DOF, MAX_ARM_DOF = 6, 7  # the experts' IK needs a full 6-D pose: 6 or 7 hinges
@@ -364,8 +364,10 @@ def simulate_gripper(spec: mujoco.MjSpec, arm: ArmGuess, actuators: Sequence[str
     data = mujoco.MjData(model)
     steps = int(math.ceil(SETTLE_S / model.opt.timestep / HOLD_EVERY))
     results = []
+    start = inside_limits(model, model.qpos0)
     for combo in itertools.product(*ends):
         mujoco.mj_resetData(model, data)
+        data.qpos[:] = start
         data.ctrl[acts] = combo
         for _ in range(steps):  # the arm held at qpos0: its joints kept (deleting them would weld the hand to the world,
             mujoco.mj_step(model, data, HOLD_EVERY)  # and MuJoCo filters no contact with the world: hand and fingers would collide)

@@ -41,7 +41,7 @@ from demo.errors import DemoError, one_line
 from demo.sim.actuation import kind_of
 from demo.sim.geometry import axis_angle_quat, down_quat, mat_to_quat, quat_angle, quat_mul
 from demo.sim.ik import ArmIK
-from demo.sim.robot import RobotConfig, load_robot, robot_from_keys
+from demo.sim.robot import RobotConfig, default_gripper_prefix, load_robot, robot_from_keys
 from demo.sim.robot_guess import (
     ArmGuess,
     GripperGuess,
@@ -106,25 +106,30 @@ def init_robot(
     mount: str | None = None,
     png: str | Path | None = None,
     overwrite: bool = False,
+    arm_prefix: str | None = None,
 ) -> RobotInit:
     """Guess a robot config for the arm MJCF ``mjcf`` (with a separate ``gripper`` MJCF attached to the arm body
-    ``mount``, guessed when None) and write it to ``out`` (default: ``<model name>.toml`` in the current folder)."""
+    ``mount``, guessed when None) and write it to ``out`` (default: ``<model name>.toml`` in the current folder).
+    ``arm_prefix``: in a file with several arms (a bimanual scene), the one to configure (see ``arm_prefix`` in
+    :mod:`demo.sim.robot`)."""
     with warnings.catch_warnings():
         # A gripper attached with names kept makes every compile warn that the model may not save to XML; demo
         # never saves it (as demo.sim.scene.compile_scene drops the same warning for the scene).
         warnings.filterwarnings("ignore", message="Attaching a spec with an empty prefix")
-        return _init_robot(mjcf, out, gripper, mount, png, overwrite)
+        return _init_robot(mjcf, out, gripper, mount, png, overwrite, arm_prefix)
 
 
 def _init_robot(mjcf: str | Path, out: str | Path | None, gripper: str | Path | None, mount: str | None,
-                png: str | Path | None, overwrite: bool) -> RobotInit:
+                png: str | Path | None, overwrite: bool, arm_prefix: str | None) -> RobotInit:
     mjcf = Path(mjcf).expanduser().resolve()
     if not mjcf.is_file():
         raise DemoError(mjcf, "MJCF file not found")
     gripper_path = Path(gripper).expanduser().resolve() if gripper is not None else None
     if gripper_path is not None and not gripper_path.is_file():
         raise DemoError(gripper_path, "gripper MJCF file not found")
-    stub = _stub(mjcf)
+    if arm_prefix is not None and not arm_prefix:
+        raise DemoError("--arm-prefix", "names the arm of a file with several (the start of its top-level body's name)")
+    stub = replace(_stub(mjcf), arm_prefix=arm_prefix or "")
     arm_model = _compile(stub)
     mount_note = []
     if gripper_path is not None:
@@ -188,15 +193,9 @@ def _compile(stub: RobotConfig) -> mujoco.MjModel:
 
 
 def _with_gripper(stub: RobotConfig, gripper: Path, mount: str) -> RobotConfig:
-    """The stub with the gripper attached at ``mount``, its names prefixed only where both files share one."""
-    attached = replace(stub, gripper_mjcf=gripper, gripper_mount=mount)
-    try:
-        _compile(attached)
-    except DemoError as exc:
-        if "repeated name" not in str(exc) and "gripper_prefix" not in str(exc):
-            raise
-        attached = replace(attached, gripper_prefix="gripper/")
-        _compile(attached)
+    """The stub with the gripper attached at ``mount``, its names carrying the default prefix (the file's stem)."""
+    attached = replace(stub, gripper_mjcf=gripper, gripper_mount=mount, gripper_prefix=default_gripper_prefix(gripper))
+    _compile(attached)
     return attached
 
 
@@ -242,9 +241,12 @@ def _keys(model: mujoco.MjModel, mjcf: Path, out: Path, stub: RobotConfig, arm: 
     if stub.gripper_mjcf is not None:
         keys["gripper_mjcf"] = config_path(stub.gripper_mjcf, out.parent)
         keys["gripper_mount"] = stub.gripper_mount
-        if stub.gripper_prefix:
-            keys["gripper_prefix"] = stub.gripper_prefix
-            comments["gripper_prefix"] = ["the arm's and the gripper's files share names: the gripper's carry this prefix"]
+        comments["gripper_mjcf"] = [f"the gripper's names carry the prefix '{stub.gripper_prefix}' (its file's stem; "
+                                    "names below may leave it out)"]
+    if stub.arm_prefix:
+        keys["arm_prefix"] = stub.arm_prefix
+        comments["arm_prefix"] = [f"one arm of {mjcf.name}: its other top-level bodies (arms, table, objects) are left out "
+                                  "(keep_bodies = [...] keeps some)"]
     keys["arm_joints"] = list(arm.arm_joints)
     comments["arm_joints"] = [f"the hinge joints from the base to the hand '{arm.hand_body}', in action order", *arm.notes]
     if undriven:

@@ -11,6 +11,7 @@ config's home configuration (``home_qpos``, rad or m per hinge/slide joint; ``ho
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 from xml.etree import ElementTree
@@ -44,13 +45,16 @@ def file_spec(robot: RobotConfig) -> mujoco.MjSpec:
         spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
     except Exception as exc:  # mujoco raises ValueError with the parser's (multi-line) message
         raise DemoError(robot.mjcf_path, f"MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
+    _name_actuators(spec)
+    if robot.arm_prefix:
+        _keep_one_arm(robot, spec)
     if robot.gripper_mjcf is not None:
         _attach_gripper(robot, spec)
-    _name_actuators(spec)
+        _name_actuators(spec)
     if robot.add_actuators:
         _add_arm_motors(robot, spec)
     if robot.ee_site_body:
-        body = spec.body(robot.ee_site_body)
+        body = _spec_body(spec, robot.ee_site_body, name_prefixes(robot))
         if body is None:
             raise DemoError(robot.config_path, f"ee_site_body '{robot.ee_site_body}' is not a body in {robot.mjcf_path.name}; "
                                                "name a body of the hand (the EE site is added to it)")
@@ -83,6 +87,96 @@ def _name_actuators(spec: mujoco.MjSpec) -> None:
         taken.add(name)
 
 
+def name_prefixes(robot: RobotConfig) -> tuple[str, ...]:
+    """The prefixes a config's names may leave out: the chosen arm's (``arm_prefix``) and the gripper file's."""
+    return tuple(p for p in (robot.arm_prefix, robot.gripper_prefix if robot.gripper_mjcf is not None else "") if p)
+
+
+def _spec_body(spec: mujoco.MjSpec, name: str, prefixes: tuple[str, ...]) -> mujoco.MjsBody | None:
+    """The body ``name``, written with or without one of ``prefixes``."""
+    for full in (name, *(p + name for p in prefixes)):
+        body = spec.body(full)
+        if body is not None:
+            return body
+    return None
+
+
+def with_full_names(robot: RobotConfig, model: mujoco.MjModel) -> RobotConfig:
+    """The config with every name it wrote without its file's prefix (:func:`name_prefixes`) completed, as the
+    compiled ``model`` spells it (``waist`` -> ``vx300s_left/waist``). Names found neither way are left for
+    :func:`validated` to report."""
+    prefixes = name_prefixes(robot)
+    if not prefixes:
+        return robot
+
+    def full(kind: mujoco.mjtObj, name: str) -> str:
+        for candidate in (name, *(p + name for p in prefixes)):
+            if mujoco.mj_name2id(model, kind, candidate) >= 0:
+                return candidate
+        return name
+
+    joint, actuator = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_ACTUATOR
+    return replace(
+        robot,
+        arm_joints=tuple(full(joint, j) for j in robot.arm_joints),
+        gripper_actuator=full(actuator, robot.gripper_actuator),
+        gripper_actuators=tuple(full(actuator, a) for a in robot.gripper_actuators),
+        ee_site=full(mujoco.mjtObj.mjOBJ_SITE, robot.ee_site),
+        base_body=full(mujoco.mjtObj.mjOBJ_BODY, robot.base_body),
+        home_key=None if robot.home_key is None else full(mujoco.mjtObj.mjOBJ_KEY, robot.home_key),
+        wrist_camera=full(mujoco.mjtObj.mjOBJ_CAMERA, robot.wrist_camera) if isinstance(robot.wrist_camera, str) else robot.wrist_camera,
+    )
+
+
+def _keep_one_arm(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
+    """``arm_prefix``: keep the top-level bodies of one arm (and ``keep_bodies``) of a file with several; the
+    world's own lights, cameras, geoms and sites go too (the task scene brings its own), and with them every
+    actuator of what was left out. Keyframes are rebuilt with the values of the joints and actuators kept."""
+    where, fname = robot.config_path, robot.mjcf_path.name
+    tops = list(spec.worldbody.bodies)
+    names = [b.name for b in tops]
+
+    def is_arm(name: str) -> bool:
+        return name == robot.arm_prefix.rstrip("/") or name.startswith(robot.arm_prefix)
+
+    if not any(is_arm(n) for n in names):
+        raise DemoError(where, f"arm_prefix '{robot.arm_prefix}' names no top-level body of {fname} (it has: {', '.join(names)})")
+    unknown = [b for b in robot.keep_bodies if b not in names]
+    if unknown:
+        raise DemoError(where, f"keep_bodies: {', '.join(unknown)} is not a top-level body of {fname} (it has: {', '.join(names)})")
+    before = _keyframes(_compile(robot, spec))
+    for body in tops:
+        if not is_arm(body.name) and body.name not in robot.keep_bodies:
+            spec.delete(body)
+    world = spec.worldbody
+    for element in [*world.lights, *world.cameras, *world.geoms, *world.sites]:
+        spec.delete(element)
+    for key in list(spec.keys):
+        spec.delete(key)
+    after = _compile(robot, spec)
+    for name, (qpos, ctrl) in before.items():
+        q, u = after.qpos0.copy(), np.zeros(after.nu)
+        for j in range(after.njnt):
+            if after.joint(j).name in qpos:
+                adr, values = int(after.jnt_qposadr[j]), qpos[after.joint(j).name]
+                q[adr:adr + len(values)] = values
+        for a in range(after.nu):
+            u[a] = ctrl.get(after.actuator(a).name, 0.0)
+        spec.add_key(name=name, qpos=q.tolist(), ctrl=u.tolist())
+
+
+def _keyframes(model: mujoco.MjModel) -> dict[str, tuple[dict[str, np.ndarray], dict[str, float]]]:
+    """Each keyframe's qpos by joint name and ctrl by actuator name (named joints and actuators)."""
+    widths = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
+    out = {}
+    for k in range(model.nkey):
+        qpos = {model.joint(j).name: model.key_qpos[k, model.jnt_qposadr[j]:model.jnt_qposadr[j] + widths.get(int(model.jnt_type[j]), 1)].copy()
+                for j in range(model.njnt) if model.joint(j).name}
+        ctrl = {model.actuator(a).name: float(model.key_ctrl[k, a]) for a in range(model.nu) if model.actuator(a).name}
+        out[model.key(k).name] = (qpos, ctrl)
+    return out
+
+
 def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
     """Attach ``gripper_mjcf`` to the arm body ``gripper_mount``, its names prefixed with ``gripper_prefix``.
 
@@ -95,7 +189,7 @@ def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
         raise DemoError(robot.gripper_mjcf, f"gripper MJCF does not load: {mujoco_message(exc)}{_named_by(robot)}") from None
     if not _declares_angle_unit(robot.gripper_mjcf):
         gripper.compiler.degree = spec.compiler.degree
-    mount = spec.body(str(robot.gripper_mount))
+    mount = _spec_body(spec, str(robot.gripper_mount), name_prefixes(robot))
     if mount is None:
         raise DemoError(robot.config_path, f"gripper_mount '{robot.gripper_mount}' is not a body in {robot.mjcf_path.name}; "
                                            "name the arm's flange body")
@@ -114,7 +208,7 @@ def _attach_gripper(robot: RobotConfig, spec: mujoco.MjSpec) -> None:
 
 def _prefix_hint(exc: BaseException) -> str:
     """For a name the arm's and the gripper's files both use: how to tell them apart."""
-    return (" (both files use it: set gripper_prefix = \"gripper/\" and write the gripper's names with it)"
+    return (" (both files use it: leave gripper_prefix out, or set one, so the gripper's names carry a prefix)"
             if "repeated name" in str(exc) else "")
 
 
@@ -165,11 +259,23 @@ def home_qpos_vector(model: mujoco.MjModel, robot: RobotConfig) -> np.ndarray:
     if robot.home_key is not None:
         key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, robot.home_key)
         return model.key_qpos[key].copy() if key >= 0 else model.qpos0.copy()
-    q = model.qpos0.copy()
+    q = inside_limits(model, model.qpos0)  # some models' qpos0 lies outside a finger's range (gym-aloha's ViperX)
     for name, value in zip(robot.arm_joints, robot.home):
         j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
         if j >= 0:
             q[model.jnt_qposadr[j]] = value
+    return q
+
+
+def inside_limits(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """``qpos`` with every limited hinge and slide joint clipped into its range. Some models' ``qpos0`` lies outside
+    a joint's range (gym-aloha's ViperX: 0 for fingers limited to 21-57 mm), where the limit and the fingers'
+    contact with each other hold them still."""
+    q = qpos.copy()
+    for j in range(model.njnt):
+        if model.jnt_limited[j] and int(model.jnt_type[j]) in _HINGE_SLIDE:
+            adr = int(model.jnt_qposadr[j])
+            q[adr] = np.clip(q[adr], *model.jnt_range[j])
     return q
 
 
@@ -189,6 +295,7 @@ def validated(robot: RobotConfig) -> RobotConfig:
     """
     where = robot.config_path
     file_model = _compile(robot, file_spec(robot))
+    robot = with_full_names(robot, file_model)
     fname = robot.mjcf_path.name
 
     def need(kind: mujoco.mjtObj, name: str, what: str, key: str) -> int:

@@ -145,13 +145,19 @@ def attach_robot(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
     child = robot.spec()
     for key in list(child.keys):
         child.delete(key)
+    child.nkey = spec.nkey  # a file that sizes its keyframes (<size nkey=...>) would conflict at every compile
     if robot.gravcomp:
         for body in child.bodies:
             if body.name != "world":
                 body.gravcomp = 1.0
-    # The scene's physics options win; equal options attach without a conflict warning.
+    # The scene's physics options and visual settings win; equal ones attach without a conflict warning
+    # (a robot file that sets <visual>, as gym-aloha's scenes do, would warn at every compile).
     for name in (n for n in dir(spec.option) if not n.startswith("_")):
         setattr(child.option, name, getattr(spec.option, name))
+    for group in ("global_", "headlight", "map", "quality", "rgba", "scale"):
+        ours, theirs = getattr(spec.visual, group), getattr(child.visual, group)
+        for name in (n for n in dir(ours) if not n.startswith("_")):
+            setattr(theirs, name, getattr(ours, name))
     base = base_frame(robot, child)
     target_quat = np.asarray(robot.base_quat, dtype=np.float64)
     target_quat = target_quat / np.linalg.norm(target_quat)

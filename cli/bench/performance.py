@@ -468,10 +468,40 @@ def bench_realtime(
                                                                              synchronous=synchronous)), progress))
     rows = [[f"{r['inference_delay_ms']:.0f}", f"{r['successes']}/{r['episodes']}",
              f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}", f"{r['round_trip_ms']['median']:.0f}",
-             f"{r['stall_steps']}/{r['steps']}", r["clipped_commands"], r["loop_overruns"]] for r in results]
+             f"{r['stall_steps']}/{r['steps']}", r["clipped_commands"], r["outside_workspace"], r["loop_overruns"]]
+            for r in results]
     mode = "synchronous" if synchronous else "asynchronous, chunks merged"
     report_console(json_out).print(table(f"bench realtime: {run} ({mode}; {network_ms:g} ms network each way)",
                                          ["inference delay (ms)", "success", "95% CI", "round trip (ms)",
-                                          "stalled steps", "clipped", "overruns"], rows))
+                                          "stalled steps", "clipped", "held at the workspace", "overruns"], rows))
     write_json({"run": str(run), "network_ms_each_way": network_ms, "synchronous": synchronous, "results": results},
                json_out)
+
+
+@bench_app.command("serve")
+def bench_serve(
+    policies: str = typer.Option(",".join(("bc", "act", "diffusion")), help="Comma-separated policies to train a few "
+                                 "steps and serve (latency does not depend on the weights)."),
+    run: list[Path] = typer.Option(None, "--run", metavar="RUN", help="Time these trained runs instead (repeatable).",
+                                   show_default="fresh runs of --policies"),
+    seconds: float = typer.Option(10.0, help="Seconds per policy, figure and reference interleaved."),
+    clients: int = typer.Option(4, help="Clients at once, for the throughput under load."),
+    seed: int = typer.Option(0, help="Seed of the data, the training and the observation sent."),
+    json_out: str = json_option(default="-"),
+) -> None:
+    """The policy server on CPU: round-trip latency (median, p90, p99) and queries/s per policy, against the same policy's in-process inference."""
+    from demo.bench.serve import ServeBenchConfig, run as run_serve  # deferred: torch and websockets
+
+    chosen = tuple(p.strip() for p in policies.split(",") if p.strip())
+    config = ServeBenchConfig(policies=chosen, runs=tuple(str(r) for r in run or ()), seconds=seconds, clients=clients,
+                              seed=seed)
+    with bars() as progress:
+        result = run_serve(config, progress)
+    rows = [[r["policy"], f"{r['inference_ms']['median']:.2f}", f"{r['round_trip_ms']['median']:.2f}",
+             f"{r['round_trip_ms']['p90']:.2f}", f"{r['round_trip_ms']['p99']:.2f}", f"{r['overhead_ms']:.2f}",
+             f"{r['ratio']:.2f}", f"{r['queries_per_s']:.0f}", f"{r['queries_per_s_under_load']:.0f}"]
+            for r in result["results"]]
+    report_console(json_out).print(table(f"bench serve ({clients} clients under load)", [
+        "policy", "inference (ms)", "round trip median", "p90", "p99", "overhead (ms)", "ratio", "queries/s",
+        "queries/s under load"], rows))
+    write_json(result, json_out)

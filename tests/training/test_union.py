@@ -14,6 +14,7 @@ import pytest
 
 from demo.cli.main import main
 from demo.errors import DemoError
+from demo.evaluation.evaluate import EvalConfig, evaluate
 from demo.sim.robot import ASSETS, BUILTIN_CONFIG
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.training.config import for_policy
@@ -93,15 +94,36 @@ def test_eval_on_the_second_arm_by_name(union_run: Path, tmp_path: Path) -> None
     assert result["robot"] == "panda_twin" and result["robot_trained_on"] is True and result["episodes"] == 1
 
 
-def test_ee7_policy_may_run_on_a_robot_it_was_not_trained_on(union_run: Path, arms: dict[str, Path], tmp_path: Path) -> None:
+def test_ee7_policy_may_run_on_a_robot_it_was_not_trained_on(union_run: Path, arms: dict[str, Path], tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """It runs there; a policy that succeeds on no episode of a robot it was not trained on exits non-zero after its
+    results are written (the tiny run succeeds nowhere); on the robot it was trained on, 0% is a result (exit 0)."""
     js = tmp_path / "eval.json"
-    assert main(["eval", str(union_run), "--robot", str(arms["other_toml"]), "--episodes", "1", "--json", str(js)]) == 0
-    result = json.loads(js.read_text())
+    argv = ["eval", str(union_run), "--robot", str(arms["other_toml"]), "--episodes", "2", "--json", str(js)]
+    result = evaluate(EvalConfig(run=str(union_run), robot=str(arms["other_toml"]), episodes=2))
     assert result["robot"] == "panda_other" and result["robot_trained_on"] is False
     assert "not among the robots the policy was trained on" in result["robot_note"]
-    # The twin under another name is the arm it was trained on: identity is the content, the name a label.
-    assert main(["eval", str(union_run), "--robot", str(arms["renamed_toml"]), "--episodes", "1", "--json", str(js)]) == 0
+    assert result["successes"] == 0  # a few training steps: it cannot do the task yet
+    assert_fails_after_results(capsys, argv, str(union_run), "succeeded on none of 2 episodes on robot 'panda_other'",
+                               "not trained on")
+    assert json.loads(js.read_text())["robot_trained_on"] is False  # written before the verdict
+    # The twin under another name is the arm it was trained on: identity is the content, the name a label; its 0%
+    # is a result (exit 0), unless --min-success asks for more.
+    twin = ["eval", str(union_run), "--robot", str(arms["renamed_toml"]), "--episodes", "1", "--json", str(js)]
+    assert main(twin) == 0
     assert json.loads(js.read_text())["robot_trained_on"] is True
+    assert_fails_after_results(capsys, [*twin, "--min-success", "0.5"], str(union_run), "success 0.00 < --min-success 0.5")
+
+
+def assert_fails_after_results(capsys: pytest.CaptureFixture[str], argv: list[str], *needles: str) -> None:
+    """``demo ARGV`` shows its results (table, JSON) and then fails: exit code 1, its last line one error holding
+    every needle."""
+    capsys.readouterr()
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    last = captured.err.strip().splitlines()[-1]
+    assert last.startswith("error: ") and all(n in last for n in needles), captured.err
+    assert "evaluated" in captured.out and "Traceback" not in captured.err
 
 
 def test_joint_policy_refuses_another_robot(arms: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
