@@ -297,6 +297,8 @@ def validated(robot: RobotConfig) -> RobotConfig:
     file_model = _compile(robot, file_spec(robot))
     robot = with_full_names(robot, file_model)
     fname = robot.mjcf_path.name
+    if robot.gripper_mjcf is not None:  # a name may belong to either file: say both
+        fname += f" (with {robot.gripper_mjcf.name} attached, its names prefixed '{robot.gripper_prefix}')"
 
     def need(kind: mujoco.mjtObj, name: str, what: str, key: str) -> int:
         i = mujoco.mj_name2id(file_model, kind, name)

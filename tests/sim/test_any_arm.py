@@ -87,6 +87,9 @@ def test_a_gripper_file_gets_its_stem_as_prefix_so_names_never_clash(tmp_path: P
     one_line_error(["robot", "check", str(config)], str(config), "claw.xml cannot be attached", "repeated name",
                    "gripper_prefix")
     assert "gripper_prefix" not in config_keys(robot, "panda.xml", "claw.xml")  # the default is not written into a store's record
+    config = with_gripper_file(tmp_path, 'wrist_camera = "kam"\n')  # a name neither file has: both files named
+    one_line_error(["robot", "check", str(config)], str(config), "wrist_camera 'kam' not found in panda.xml (with claw.xml "
+                   "attached, its names prefixed 'claw/')")
 
 
 def test_a_gripper_file_without_an_angle_unit_is_read_in_the_arms(tmp_path: Path) -> None:
