@@ -9,6 +9,7 @@ import numpy as np
 
 from demo.store import EpisodeStore
 from demo.store.episode_table import REASONS_COLUMN, SCORE_PREFIX
+from demo.store.instructions import INSTRUCTION_COLUMN
 
 LABEL_REASON_CHARS = 40  # a dropdown entry shows this much of the drop reasons; the details show all
 
@@ -58,6 +59,8 @@ class EpisodeFlags:
             f"{int(self.lengths[i])} frames ({float(info.get('duration_s', 0)):.2f} s)",
             f"source `{info.get('source', '')}`, operator `{info.get('operator', '') or '-'}`, seed {info.get('seed', -1)}",
         ]
+        if info.get(INSTRUCTION_COLUMN):
+            lines.append(f"instruction: *{info[INSTRUCTION_COLUMN]}*")
         if self.masks:
             lines.append("masks: " + ", ".join(f"{name} {'✔' if member[i] else '✘'}" for name, member in self.masks.items()))
         if self.reasons is not None:

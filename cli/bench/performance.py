@@ -449,6 +449,9 @@ def bench_realtime(
     network_ms: float = typer.Option(20.0, "--network-ms", help="Injected network delay each way (ms)."),
     synchronous: bool = typer.Option(False, "--synchronous", help="The baseline: every step waits for its own "
                                      "observation's chunk before it acts."),
+    ensemble: float = typer.Option(None, "--ensemble", metavar="M",
+                                   help="Weight exp(-M age) of overlapping chunks, oldest first: M > 0 favours the "
+                                        "older (ACT), M < 0 the newer.", show_default="ACT's 0.01"),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
     json_out: str = json_option(default="-"),
 ) -> None:
@@ -460,12 +463,13 @@ def bench_realtime(
         delays = [float(d) / 1000 for d in delays_ms.split(",") if d.strip()]
     except ValueError:
         raise DemoError("--delays-ms", f"{delays_ms!r} is not a comma-separated list of numbers") from None
+    control = ControlConfig(network_s=network_ms / 1000, synchronous=synchronous,
+                            **({"ensemble": ensemble} if ensemble is not None else {}))
     results = []
     with bars() as progress:
         for delay in delays:
             results.append(run_realtime(RealtimeConfig(str(run), episodes=episodes, seed=seed, inference_delay_s=delay,
-                                                       control=ControlConfig(network_s=network_ms / 1000,
-                                                                             synchronous=synchronous)), progress))
+                                                       control=control), progress))
     rows = [[f"{r['inference_delay_ms']:.0f}", f"{r['successes']}/{r['episodes']}",
              f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}", f"{r['round_trip_ms']['median']:.0f}",
              f"{r['stall_steps']}/{r['steps']}", r["clipped_commands"], r["outside_workspace"], r["loop_overruns"]]
@@ -474,8 +478,8 @@ def bench_realtime(
     report_console(json_out).print(table(f"bench realtime: {run} ({mode}; {network_ms:g} ms network each way)",
                                          ["inference delay (ms)", "success", "95% CI", "round trip (ms)",
                                           "stalled steps", "clipped", "held at the workspace", "overruns"], rows))
-    write_json({"run": str(run), "network_ms_each_way": network_ms, "synchronous": synchronous, "results": results},
-               json_out)
+    write_json({"run": str(run), "network_ms_each_way": network_ms, "synchronous": synchronous, "ensemble": control.ensemble,
+                "results": results}, json_out)
 
 
 @bench_app.command("serve")

@@ -73,6 +73,18 @@ def test_round_trip_is_bit_exact(sample: Path, tmp_path: Path) -> None:
     assert b.verify() == []
 
 
+def test_instructions_travel_as_a_demo_attribute(tmp_path: Path) -> None:
+    """An episode's instruction is its demo group's ``episode.instruction`` attribute, and imports back."""
+    assert main(["collect", "--task", "reach", "--episodes", "2", "--workers", "0", "--instruction", "touch the goal",
+                 "--out", str(tmp_path / "told.zarr")]) == 0
+    export_robomimic(tmp_path / "told.zarr", tmp_path / "told.hdf5")
+    with h5py.File(tmp_path / "told.hdf5") as f:
+        assert [f[f"data/demo_{i}"].attrs["episode.instruction"] for i in range(2)] == ["touch the goal"] * 2
+    import_robomimic(tmp_path / "told.hdf5", tmp_path / "back.zarr")
+    with EpisodeStore.open(tmp_path / "back.zarr") as store:
+        assert list(store.column("instruction")) == ["touch the goal"] * 2
+
+
 def test_subset_and_cli(sample: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "train.hdf5"
     assert main(["export", str(sample), "--format", "robomimic", "--out", str(out), "--mask", "train"]) == 0

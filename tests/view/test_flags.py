@@ -58,3 +58,15 @@ def test_curation_drop_reasons_are_shown(tmp_path: Path) -> None:
     header = flags.table(around=0).splitlines()[0]
     assert "dropped for" in header
     store.close()
+
+
+def test_an_episodes_instruction_is_shown(tmp_path: Path) -> None:
+    from demo.cli.main import main
+
+    out = tmp_path / "told.zarr"
+    assert main(["collect", "--task", "reach", "--episodes", "2", "--workers", "0", "--instruction",
+                 "Touch the target", "--out", str(out)]) == 0
+    with EpisodeStore.open(out) as store:
+        assert "instruction: *Touch the target*" in EpisodeFlags(store).details(1)
+    with EpisodeStore.open(make_sample_store(tmp_path / "s.zarr", episodes=2, seed=3)) as store:
+        assert "instruction" not in EpisodeFlags(store).details(0)  # none told
