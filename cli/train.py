@@ -18,7 +18,7 @@ from demo.cli.config_options import config_options, option_fields, with_options
 from demo.cli.main import app, invocation
 from demo.cli.options import (address_option, device_option, executor_option, json_option, overwrite_option,
                               robot_option)
-from demo.cli.output import kv_table, report_console, write_json
+from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
 from demo.executor import ExecutorConfig
@@ -198,6 +198,11 @@ def train(
                          + "".join(f", {k.replace('_', ' ')} {r[k]}" for k in ("takeovers", "sim_steps") if k in r)))
     if distributed.is_main_process():  # one table and one JSON summary per run, not per rank
         report_console(json_out).print(kv_table("trained", rows))
+        per_task = summary.get("val_loss_per_instruction") or {}
+        if per_task:  # one policy for many tasks: which of them it fits worst
+            report_console(json_out).print(table("validation loss per instruction, worst first", ("instruction", "loss"),
+                                                 [(text, f"{loss:.4g}") for text, loss in
+                                                  sorted(per_task.items(), key=lambda item: -item[1])]))
         write_json(summary, json_out)
 
 

@@ -146,6 +146,22 @@ class TrainingData:
         """The fixed validation windows (up to :data:`VALIDATION_WINDOWS`), or None without any."""
         return self.windows(self.val_episodes).fixed(VALIDATION_WINDOWS_IMAGES if self.images else VALIDATION_WINDOWS, seed)
 
+    def validation_batches_by_instruction(self, seed: int) -> dict[str, Batch]:
+        """Per instruction (task) of an instruction-conditioned run, the fixed validation windows of its validation
+        episodes (those with none have no entry); {} for a run without instructions."""
+        if self.instructions is None or not len(self.val_episodes):
+            return {}
+        starts = np.concatenate([[0], self.ends[:-1]])
+        told = self.instructions.of_frame[starts[self.val_episodes]]  # each validation episode's instruction
+        out = {}
+        for k, text in enumerate(self.instructions.texts):
+            episodes = self.val_episodes[told == k]
+            batch = self.windows(episodes).fixed(VALIDATION_WINDOWS_IMAGES if self.images else VALIDATION_WINDOWS, seed) \
+                if len(episodes) else None
+            if batch is not None:
+                out[text] = batch
+        return out
+
     def reload(self, store: EpisodeStore, train_episodes: np.ndarray, val_episodes: np.ndarray) -> "TrainingData":
         """The store's frames now (it may have grown) with another split and *these* normalisers."""
         raw = _load_arrays(store, self.obs_spec, self.relative)

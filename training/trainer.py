@@ -210,6 +210,11 @@ class TrainingRun(Run):
                 v = validation_loss(learner, val_batch)
                 self.metrics.setdefault("val_loss", []).append([step, v])
                 self.tick(val=v)
+            if val_batch is not None and step == until and self.data.instructions is not None:
+                # One policy for many tasks: the validation loss of each task (instruction) on its own, at the end.
+                self.metrics["val_loss_per_instruction"] = {
+                    text: validation_loss(learner, batch)
+                    for text, batch in self.data.validation_batches_by_instruction(c.seed).items()}
             if self.monitor is not None and c.eval_every and step % c.eval_every == 0 and step != until:
                 self.evaluate()
                 self.checkpoint()
@@ -271,6 +276,7 @@ class TrainingRun(Run):
             "step": learner.step,
             "train_loss": m["train_loss"][-1][1] if m["train_loss"] else None,
             "val_loss": m["val_loss"][-1][1] if m["val_loss"] else None,
+            **({"val_loss_per_instruction": m["val_loss_per_instruction"]} if m.get("val_loss_per_instruction") else {}),
             "success_rate": m["eval"][-1]["success_rate"] if m["eval"] else None,
             "seconds": self.seconds,
             "expert_labels": self.record["data"]["expert_labels"],

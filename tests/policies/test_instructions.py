@@ -101,9 +101,12 @@ def test_the_words_decide_the_goal(dots: Path, tmp_path: Path, monkeypatch: pyte
     assert bundle.tokenizer.unknown_words("go to the green dot") == ["green"]
     followed = evaluate(tmp_path / "words", tmp_path / "w.json")
     assert followed["success_rate"] >= 0.9, followed["success_rate"]
+    per_task = json.loads((tmp_path / "words" / "metrics.json").read_text())["val_loss_per_instruction"]
+    assert set(per_task) == set(told) and all(0 < v < 1 for v in per_task.values())  # each task validated alone
 
     assert train(dots, tmp_path / "blank", "--no-instructions") == 0
     assert load_bundle(tmp_path / "blank").tokenizer is None
+    assert "val_loss_per_instruction" not in json.loads((tmp_path / "blank" / "metrics.json").read_text())
     guessed = evaluate(tmp_path / "blank", tmp_path / "b.json")
     assert guessed["success_rate"] <= 0.7, guessed["success_rate"]  # a guess between two: about half
 
