@@ -21,7 +21,7 @@ from demo.sim.randomize import Randomization
 from demo.sim.render import parse_camera
 from demo.store.instructions import check_instruction
 
-SOURCES = ("scripted", "kinesthetic", "vr")
+SOURCES = ("scripted", "kinesthetic", "vr", "leader")
 
 
 @app.command()
@@ -47,7 +47,7 @@ def collect(
         None, help="scripted: simulated operator profile expert|good|okay|poor; human sources: a name.",
         show_default="expert; human sources: the input's, else human",
     ),
-    input: Path = typer.Option(None, "--input", metavar="FILE", help="kinesthetic: JOINTS.csv; vr: POSES.jsonl (see README).",
+    input: Path = typer.Option(None, "--input", metavar="FILE", help="kinesthetic: JOINTS.csv; vr: POSES.jsonl; leader: LEADER.csv (see README).",
                                show_default="none"),
     calib: Path = typer.Option(None, metavar="JSON", help="vr: tracker->base calibration JSON.",
                                show_default="align the first pose to the EE"),
@@ -76,7 +76,7 @@ def collect(
     overwrite: bool = overwrite_option("an existing store at --out"),
     json_out: str = json_option("the run summary"),
 ) -> None:
-    """Record demonstrations (scripted experts; kinesthetic and VR-style input files)."""
+    """Record demonstrations (scripted experts; kinesthetic, VR-style and leader-arm input files)."""
     if source not in SOURCES:
         raise DemoError("--source", f"unknown source {source!r} (choose from {', '.join(SOURCES)})")
     cameras = tuple(parse_camera(c, "--camera") for c in camera)
@@ -111,7 +111,7 @@ def collect(
             if source == "vr":
                 result = collect_vr(task, input, out, seed, calib=calib, scale=scale, ik=ik, smoothing=smoothing, **human)
             else:
-                result = collect_kinesthetic(task, input, out, seed, **human)
+                result = collect_kinesthetic(task, input, out, seed, leader=source == "leader", **human)
     summary = {
         "out": result.path,
         "task": task,
@@ -134,6 +134,11 @@ def collect(
     if unreachable is not None:
         summary["unreachable_frames"] = unreachable
         rows.append(("unreachable frames (flagged)", unreachable))
+    tracking = getattr(result, "tracking_error_rad", None)
+    if tracking:  # leader-follower: how far the follower lagged its leader, per joint
+        summary["tracking_error_rad"] = tracking
+        rows.append(("tracking error (rad, mean / max)",
+                     ", ".join(f"{joint} {e['mean']:.4f} / {e['max']:.4f}" for joint, e in tracking.items())))
     if result.modes:
         rows.append(("modes", ", ".join(f"{k}: {v}" for k, v in sorted(result.modes.items()))))
     report_console(json_out).print(kv_table("collected", rows))

@@ -50,7 +50,7 @@ class HumanConfig:
     """Everything that determines a human-input collection run."""
 
     task: str
-    source: str  # "kinesthetic" | "vr"
+    source: str  # "kinesthetic" | "vr" | "leader"
     input: str  # the input file
     seed: int = 0
     operator: str | None = None  # None: the file's header, else DEFAULT_OPERATOR
@@ -70,6 +70,7 @@ class HumanConfig:
 @dataclass
 class HumanCollectResult(CollectResult):
     unreachable_frames: int = 0
+    tracking_error_rad: dict[str, dict[str, float]] | None = None  # leader-follower: per arm joint, mean and max
 
 
 @dataclass

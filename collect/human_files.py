@@ -11,11 +11,23 @@ writes, from the scripted expert's episodes ``episode_seed(seed, i)`` (the same 
   value and a header ``{"episode_seed": N}`` per episode;
 - ``CALIB.json``: the exact tracker -> base calibration of that frame (for ``--calib``);
 - ``JOINTS.csv``: the measured joint trajectory at 100 Hz with encoder noise, plus the gripper
-  command, one ``episode_seed`` per episode.
+  command, one ``episode_seed`` per episode;
+- ``LEADER.csv``: a leader arm moved along the same joint path by a person of a given skill
+  (:data:`LEADER_PROFILES`: a reaction latency, a physiological tremor of 8-12 Hz, and a hand that
+  follows the intended path as a damped spring, overshooting where it is underdamped), in the leader's
+  readings (the robot config's ``[leader]`` calibration inverted), at 200 Hz.
+
+=======  ==========  ============  ================================
+leader   latency     tremor        hand: damping ratio, frequency
+=======  ==========  ============  ================================
+good     0.05 s      0.001 rad     0.9, 6 Hz (no overshoot)
+okay     0.15 s      0.004 rad     0.6, 4 Hz (~10% overshoot)
+poor     0.30 s      0.012 rad     0.35, 3 Hz (~30% overshoot)
+=======  ==========  ============  ================================
 
 Retarget them with ``collect_vr(task, POSES.jsonl, out, scale=1/1.3)`` (first pose aligned to the
-EE) or ``collect_vr(..., calib=CALIB.json)`` (absolute), and ``collect_kinesthetic(task,
-JOINTS.csv, out)``.
+EE) or ``collect_vr(..., calib=CALIB.json)`` (absolute), ``collect_kinesthetic(task,
+JOINTS.csv, out)`` and ``collect_kinesthetic(task, LEADER.csv, out, leader=True)``.
 """
 
 from __future__ import annotations
@@ -29,7 +41,10 @@ from typing import Any
 
 import numpy as np
 
+from demo.collect.leader import calibration as leader_calibration
 from demo.collect.scripted import CollectConfig, make_env_for, scripted_episode
+from demo.sim import load_robot
+from demo.sim.robot import LeaderCalibration
 from demo.sim.geometry import axis_angle_quat, quat_conj, quat_mul
 
 
@@ -64,6 +79,25 @@ class JointFileParams:
     noise_rad: float = 2e-4  # encoder noise std
 
 
+@dataclass(frozen=True)
+class LeaderProfile:
+    """How a person moving a leader arm departs from the path they intend (module docstring's table)."""
+
+    name: str
+    latency_s: float  # the leader starts following the intended path this late
+    tremor_rad: float  # amplitude of the 8-12 Hz tremor on every joint
+    damping: float  # damping ratio of the hand's second-order follow of the intended path (< 1: overshoot)
+    frequency_hz: float  # its natural frequency
+    rate_hz: float = 200.0  # the leader's encoders
+
+
+LEADER_PROFILES = {p.name: p for p in (
+    LeaderProfile("good", 0.05, 0.001, 0.9, 6.0),
+    LeaderProfile("okay", 0.15, 0.004, 0.6, 4.0),
+    LeaderProfile("poor", 0.30, 0.012, 0.35, 3.0),
+)}
+
+
 @dataclass
 class ScriptedPath:
     seed: int  # env.reset seed
@@ -73,6 +107,7 @@ class ScriptedPath:
     ee_quat: np.ndarray  # (T, 4)
     joint_pos: np.ndarray  # (T, n_arm), measured
     gripper: np.ndarray  # (T,) command
+    joint_command: np.ndarray | None = None  # (T, n_arm) the expert's joint targets (what a leader arm would hold)
     success: bool = True
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -90,6 +125,7 @@ def scripted_paths(task: str, episodes: int, seed: int, robot: str | None = None
                 seed=int(info["seed"]), fps=float(env.fps), joints=tuple(env.robot.arm_joints),
                 ee_pos=data["obs.ee_pos"].astype(np.float64), ee_quat=data["obs.ee_quat"].astype(np.float64),
                 joint_pos=data["obs.joint_pos"].astype(np.float64), gripper=data["action"][:, -1].astype(np.float64),
+                joint_command=data["action"][:, :-1].astype(np.float64),
                 success=bool(info["success"]),
             ))
     finally:
@@ -142,6 +178,31 @@ def joint_rows(path: ScriptedPath, params: JointFileParams, rng: np.random.Gener
     return [[path.seed, f"{tj:.4f}", *[f"{v:.6f}" for v in qj], f"{g:g}"] for tj, qj, g in zip(t, q, grip)]
 
 
+def leader_rows(path: ScriptedPath, leader: LeaderCalibration, profile: LeaderProfile,
+                rng: np.random.Generator) -> list[list[Any]]:
+    """One episode of ``LEADER.csv``: the expert's joint targets as a person would move the leader along them (on
+    ALOHA the leader's position is the follower's target: a perfect operator reproduces the expert's episode)."""
+    dt = 1.0 / profile.rate_hz
+    duration = (len(path.joint_pos) - 1) / path.fps + profile.latency_s + 0.3  # the hand settles at the end
+    t = np.arange(int(np.floor(duration * profile.rate_hz)) + 1) * dt
+    target = path.joint_command if path.joint_command is not None else path.joint_pos
+    src = np.arange(len(target)) / path.fps
+    late = np.clip(t - profile.latency_s, 0.0, src[-1])
+    intended = np.stack([np.interp(late, src, target[:, j]) for j in range(target.shape[1])], axis=1)
+    w, zeta = 2 * np.pi * profile.frequency_hz, profile.damping
+    hand, speed = intended[0].copy(), np.zeros(intended.shape[1])
+    moved = np.empty_like(intended)
+    for k in range(len(t)):  # semi-implicit Euler of x'' = w^2 (q - x) - 2 zeta w x'
+        speed += dt * (w * w * (intended[k] - hand) - 2 * zeta * w * speed)
+        hand = hand + dt * speed
+        moved[k] = hand
+    freq, phase = rng.uniform(8.0, 12.0, intended.shape[1]), rng.uniform(0.0, 2 * np.pi, intended.shape[1])
+    moved += profile.tremor_rad * np.sin(2 * np.pi * freq * t[:, None] + phase)
+    readings = leader.readings(moved)
+    grip = leader.gripper_reading(path.gripper[np.minimum(np.floor(late * path.fps + 1e-9).astype(int), len(path.gripper) - 1)])
+    return [[path.seed, f"{tk:.4f}", *[f"{v:.6f}" for v in qk], f"{g:.6f}"] for tk, qk, g in zip(t, readings, grip)]
+
+
 def write_human_files(
     out_dir: str | Path,
     task: str = "pick",
@@ -152,8 +213,9 @@ def write_human_files(
     task_options: dict[str, Any] | None = None,
     frame: TrackerFrame = TrackerFrame(),
     joints: JointFileParams = JointFileParams(),
+    leader: LeaderProfile = LEADER_PROFILES["good"],
 ) -> dict[str, Any]:
-    """Write POSES.jsonl, CALIB.json and JOINTS.csv into ``out_dir``; returns a summary."""
+    """Write POSES.jsonl, CALIB.json, JOINTS.csv and LEADER.csv into ``out_dir``; returns a summary."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = scripted_paths(task, episodes, seed, robot, task_options)
@@ -168,10 +230,16 @@ def write_human_files(
         writer.writerow(["episode_seed", "t", *paths[0].joints, "gripper"])
         for p in paths:
             writer.writerows(joint_rows(p, joints, rng))
+    calibration = leader_calibration(load_robot(robot))
+    with open(out / "LEADER.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["episode_seed", "t", *calibration.joints, "gripper"])
+        for p in paths:
+            writer.writerows(leader_rows(p, calibration, leader, rng))
     return {
         "out_dir": str(out), "task": task, "episodes": episodes, "seed": seed,
         "scripted_successes": sum(p.success for p in paths),
-        "files": ["POSES.jsonl", "CALIB.json", "JOINTS.csv"],
+        "files": ["POSES.jsonl", "CALIB.json", "JOINTS.csv", "LEADER.csv"], "leader_profile": leader.name,
         "vr_scale": 1.0 / frame.scale,
     }
 
@@ -189,13 +257,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out-dir", required=True)
     parser.add_argument("--robot", default=None, help="robot config TOML (default: built-in)")
+    parser.add_argument("--leader-profile", default="good", choices=sorted(LEADER_PROFILES),
+                        help="the person moving the leader arm (LEADER.csv)")
     args = parser.parse_args(argv)
-    summary = write_human_files(args.out_dir, args.task, args.episodes, args.seed, robot=args.robot)
+    summary = write_human_files(args.out_dir, args.task, args.episodes, args.seed, robot=args.robot,
+                                leader=LEADER_PROFILES[args.leader_profile])
     d = summary["out_dir"]
     print(json.dumps(summary, indent=2))
     print(f"# replay:\n#   collect_vr('{args.task}', '{d}/POSES.jsonl', OUT, scale={summary['vr_scale']:.6f})"
           f"\n#   collect_vr('{args.task}', '{d}/POSES.jsonl', OUT, calib='{d}/CALIB.json')"
-          f"\n#   collect_kinesthetic('{args.task}', '{d}/JOINTS.csv', OUT)")
+          f"\n#   collect_kinesthetic('{args.task}', '{d}/JOINTS.csv', OUT)"
+          f"\n#   collect_kinesthetic('{args.task}', '{d}/LEADER.csv', OUT, leader=True)")
     return 0
 
 

@@ -74,9 +74,11 @@ def joint_ranges(robot: RobotConfig) -> dict[str, tuple[float, float]]:
 
 
 def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
-                    ranges: Mapping[str, tuple[float, float]] | None = None) -> list[JointTrack]:
+                    ranges: Mapping[str, tuple[float, float]] | None = None,
+                    gripper_in_unit_range: bool = True) -> list[JointTrack]:
     """Read and validate a joint CSV; any problem is a DemoError naming ``path:line``. ``ranges``
-    (:func:`joint_ranges`): a joint value far outside its joint's range is one."""
+    (:func:`joint_ranges`): a joint value far outside its joint's range is one. ``gripper_in_unit_range``:
+    the gripper column is a command in [0, 1] (False: any finite reading, a leader's, calibrated later)."""
     path = Path(path)
     if not path.is_file():
         raise DemoError(path, "joint file not found")
@@ -122,7 +124,7 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
         check_time(where, t, rows[-1][0] if rows else None, rows[0][0] if rows else None)
         q = np.array([_joint(where, j, cells[columns[j]], (ranges or {}).get(j)) for j in arm_joints])
         g = _number(where, "gripper", cells[columns["gripper"]])
-        if not 0.0 <= g <= 1.0:
+        if gripper_in_unit_range and not 0.0 <= g <= 1.0:
             raise DemoError(where, f"'gripper' must be within 0 (open) .. 1 (closed), got {g:g}")
         rows.append((t, q, g))
     if columns is None:
@@ -217,17 +219,26 @@ def collect_kinesthetic(
     append: bool = False,
     overwrite: bool = False,
     progress: Progress | None = None,
+    leader: bool = False,
 ) -> HumanCollectResult:
-    """Play every episode of a joint CSV through the simulator into the store at ``out``."""
-    robot_config = load_robot(robot)
-    tracks = parse_joint_csv(input_csv, robot_config.arm_joints, joint_ranges(robot_config))
-    config = HumanConfig(
-        task=task, source="kinesthetic", input=str(input_csv), seed=seed, operator=operator, robot=robot,
-        task_options=dict(task_options or {}), cameras=tuple(cameras), settings={"lookahead_steps": 1},
-        instruction=instruction,
-    )
+    """Play every episode of a joint CSV through the simulator into the store at ``out``. ``leader``: the file is a
+    leader arm's recording, followed as ALOHA does (:mod:`demo.collect.leader`); the result's ``tracking_error_rad``
+    then holds each arm joint's mean and max tracking error over the episodes (rad)."""
+    from demo.collect.leader import leader_episode, leader_tracks, tracking_summary  # it builds on this module
 
+    robot_config = load_robot(robot)
+    if leader:
+        tracks, calibration = leader_tracks(input_csv, robot_config)
+        source, settings = "leader", {"leader": calibration.to_json()}
+    else:
+        tracks = parse_joint_csv(input_csv, robot_config.arm_joints, joint_ranges(robot_config))
+        source, settings = "kinesthetic", {"lookahead_steps": 1}
+    config = HumanConfig(
+        task=task, source=source, input=str(input_csv), seed=seed, operator=operator, robot=robot,
+        task_options=dict(task_options or {}), cameras=tuple(cameras), settings=settings, instruction=instruction,
+    )
     state: dict[str, ArmFK] = {}
+    lags: list[np.ndarray] = []
 
     def run(env: Any, index: int, count: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         track = tracks[index]
@@ -235,9 +246,18 @@ def collect_kinesthetic(
         if "fk" not in state:
             state["fk"] = ArmFK(env)
         fk = state["fk"]
-        episode, ik_ok, ik_err = kinesthetic_episode(env, track, s, fk)
+        extra = {}
+        if leader:
+            episode, ik_ok, ik_err, lag = leader_episode(env, track, s, fk)
+            lags.append(lag)
+            extra["tracking_error_rad"] = float(lag.max())  # the episode's worst joint
+        else:
+            episode, ik_ok, ik_err = kinesthetic_episode(env, track, s, fk)
         data = dict(episode.data)
         data["info.ik_ok"], data["info.ik_error"] = ik_ok, ik_err
-        return data, episode_info(config, track.episode, s, episode.success, episode.first_success_step, ik_ok)
+        return data, {**episode_info(config, track.episode, s, episode.success, episode.first_success_step, ik_ok), **extra}
 
-    return record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, progress=progress)
+    result = record_episodes(config, len(tracks), run, out, append=append, overwrite=overwrite, progress=progress)
+    if leader:
+        result.tracking_error_rad = tracking_summary(lags, robot_config.arm_joints)
+    return result

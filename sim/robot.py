@@ -38,6 +38,16 @@ A robot config is a small TOML file (paths relative to it)::
                                               #   body is named so or starts with it; names here may omit it
     keep_bodies = ["table"]                   #   ... the file's other top-level bodies kept (default: none)
 
+Leader-follower capture (``demo collect --source leader``, :mod:`demo.collect.leader`) reads a leader
+arm's joint readings; the ``[leader]`` table (at the end of the file, as TOML tables go) says how they
+map onto this arm, per arm joint ``follower = sign * reading + offset`` (rad, or m for a slide)::
+
+    [leader]
+    joints = ["waist", "shoulder", ...]       # the leader file's column for each arm joint (default: arm_joints)
+    sign = [1, -1, 1, 1, 1, 1]                # +1 or -1 per joint (default: all +1)
+    offset = [0, 0.05, 0, 0, 0, 0]            # rad added after the sign (default: all 0)
+    gripper = [0.2, 0.9]                      # the leader's gripper reading at open and at closed (default [0, 1])
+
 A file with several arms (gym-aloha's bimanual scenes: two ViperX arms, a table, a cube) runs one of
 them: ``arm_prefix`` keeps the top-level bodies of that arm, every other top-level body (the other
 arms, the file's table and objects) is left out unless ``keep_bodies`` names it, and so are the
@@ -104,7 +114,7 @@ from demo.sim.robot_model import (
 # The model-side names (robot_spec ... arm_actuator_for) are defined in demo.sim.robot_model and
 # re-exported: callers import them from here.
 __all__ = [
-    "ASSETS", "BUILTIN_CONFIG", "DEFAULT_WRIST_CAMERA", "PACKAGE_SCHEME", "RobotConfig", "WristCamera",
+    "ASSETS", "BUILTIN_CONFIG", "DEFAULT_WRIST_CAMERA", "LeaderCalibration", "PACKAGE_SCHEME", "RobotConfig", "WristCamera",
     "config_keys", "default_gripper_prefix", "load_robot", "mjcf_location", "robot_from_keys",
     "arm_actuator_for", "home_qpos_vector", "is_descendant", "mujoco_message", "position_gain", "robot_spec",
 ]
@@ -120,7 +130,7 @@ _ONE_OF = (
 )
 _OPTIONAL = ("name", "ee_site_body", "ee_site_pos", "ee_site_quat", "gravcomp", "max_joint_velocity", "wrist_camera",
              "gripper_actuator", "gripper_actuators", "home_key", "home", "base_pos", "base_quat", "pd_kp", "pd_kd",
-             "gripper_mjcf", "gripper_mount", "gripper_prefix", "add_actuators", "arm_prefix", "keep_bodies")
+             "gripper_mjcf", "gripper_mount", "gripper_prefix", "add_actuators", "arm_prefix", "keep_bodies", "leader")
 
 
 @dataclass(frozen=True)
@@ -142,6 +152,38 @@ def _looking_at(pos: tuple[float, ...], target: tuple[float, ...]) -> tuple[floa
 
 
 DEFAULT_WRIST_CAMERA = WristCamera(_WRIST_POS, _looking_at(_WRIST_POS, _WRIST_TARGET), _WRIST_FOVY)
+
+
+@dataclass(frozen=True)
+class LeaderCalibration:
+    """How a leader arm's readings map onto this arm (``[leader]``; module docstring): per arm joint
+    ``follower = sign * reading + offset`` (rad, or m), the gripper's reading linear between ``gripper``'s open
+    and closed values (closedness 0 .. 1, clipped)."""
+
+    joints: tuple[str, ...]  # the leader file's column of each arm joint, in arm_joints order
+    sign: tuple[float, ...]
+    offset: tuple[float, ...]
+    gripper: tuple[float, float] = (0.0, 1.0)  # the reading at open, at closed
+
+    def follower(self, readings: np.ndarray) -> np.ndarray:
+        """Leader joint readings ``[..., n_arm]`` -> this arm's joint positions."""
+        return np.asarray(self.sign) * readings + np.asarray(self.offset)
+
+    def readings(self, joints: np.ndarray) -> np.ndarray:
+        """This arm's joint positions -> the leader readings that map onto them (the inverse of :meth:`follower`)."""
+        return (joints - np.asarray(self.offset)) / np.asarray(self.sign)
+
+    def closedness(self, reading: np.ndarray | float) -> np.ndarray:
+        open_, closed = self.gripper
+        return np.clip((np.asarray(reading, dtype=np.float64) - open_) / (closed - open_), 0.0, 1.0)
+
+    def gripper_reading(self, closedness: np.ndarray | float) -> np.ndarray:
+        open_, closed = self.gripper
+        return open_ + np.asarray(closedness, dtype=np.float64) * (closed - open_)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"joints": list(self.joints), "sign": list(self.sign), "offset": list(self.offset),
+                "gripper": list(self.gripper)}
 
 
 @dataclass(frozen=True)
@@ -169,6 +211,7 @@ class RobotConfig:
     gripper_prefix: str = ""  # prepended to every name of the gripper file when it is attached
     arm_prefix: str = ""  # a file with several arms: the one whose top-level bodies' names start with it
     keep_bodies: tuple[str, ...] = ()  # ... and the file's other top-level bodies kept
+    leader: LeaderCalibration | None = None  # leader-follower capture's calibration ([leader]); None: identity
     add_actuators: bool = False  # a PD servo on every arm joint no actuator drives
     ee_site_body: str | None = None
     ee_site_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -298,6 +341,7 @@ def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: 
         gripper_prefix=str(raw.get("gripper_prefix", default_gripper_prefix(gripper_mjcf))),
         arm_prefix=str(raw.get("arm_prefix", "")),
         keep_bodies=tuple(keep),
+        leader=_leader(where, raw["leader"], tuple(arm)) if "leader" in raw else None,
         add_actuators=_flag(where, "add_actuators", raw.get("add_actuators", False)),
         ee_site_body=raw.get("ee_site_body"),
         ee_site_pos=_floats(where, "ee_site_pos", raw.get("ee_site_pos", [0, 0, 0]), 3),  # type: ignore[arg-type]
@@ -356,6 +400,29 @@ def _grippers(where: Path, raw: dict[str, Any]) -> tuple[tuple[str, ...], tuple[
     if any(r[0] == r[1] for r in ranges):
         raise DemoError(where, "'gripper_range' open and closed values must differ")
     return tuple(names), tuple((r[0], r[1]) for r in ranges)
+
+
+def _leader(where: Path, value: Any, arm: tuple[str, ...]) -> LeaderCalibration:
+    """The ``[leader]`` table (module docstring)."""
+    if not isinstance(value, dict):
+        raise DemoError(where, "'leader' is a table: [leader] with joints, sign, offset, gripper")
+    unknown = sorted(set(value) - {"joints", "sign", "offset", "gripper"})
+    if unknown:
+        raise DemoError(where, f"unknown key(s) in [leader]: {', '.join(unknown)} (it has joints, sign, offset, gripper)")
+    joints = value.get("joints", list(arm))
+    if (not isinstance(joints, list) or len(joints) != len(arm) or not all(isinstance(j, str) and j for j in joints)
+            or len(set(joints)) != len(joints)):
+        raise DemoError(where, f"[leader] joints must name {len(arm)} distinct columns, one per arm joint")
+    if set(joints) & {"t", "gripper", "episode_seed"}:
+        raise DemoError(where, "[leader] joints may not be named t, gripper or episode_seed (the file's other columns)")
+    sign = _floats(where, "[leader] sign", value.get("sign", [1.0] * len(arm)), len(arm))
+    if any(v not in (1.0, -1.0) for v in sign):
+        raise DemoError(where, f"[leader] sign must be +1 or -1 per joint, got {list(sign)}")
+    offset = _floats(where, "[leader] offset", value.get("offset", [0.0] * len(arm)), len(arm))
+    gripper = _floats(where, "[leader] gripper", value.get("gripper", [0.0, 1.0]), 2)
+    if gripper[0] == gripper[1]:
+        raise DemoError(where, "[leader] gripper's open and closed readings must differ")
+    return LeaderCalibration(tuple(joints), sign, offset, (gripper[0], gripper[1]))
 
 
 def _wrist_camera(where: Path, value: Any) -> WristCamera | str:
@@ -430,6 +497,8 @@ def config_keys(robot: RobotConfig, mjcf: str, gripper_mjcf: str | None = None) 
         keys["arm_prefix"] = robot.arm_prefix
     if robot.keep_bodies:
         keys["keep_bodies"] = list(robot.keep_bodies)
+    if robot.leader is not None:
+        keys["leader"] = robot.leader.to_json()
     if robot.add_actuators:
         keys["add_actuators"] = True
     if robot.ee_site_body:
