@@ -1,4 +1,4 @@
-"""`demo teleop --mode kinesthetic|vr`: live teleoperation in the browser; `demo bench retarget`."""
+"""`demo teleop --mode kinesthetic|vr|leader`: live teleoperation in the browser; `demo bench retarget`."""
 
 from __future__ import annotations
 
@@ -15,13 +15,14 @@ from demo.view.teleop import TeleopConfig, serve_teleop
 
 @app.command()
 def teleop(
-    mode: str = typer.Option("vr", help="kinesthetic (drag the backdrivable arm) or vr (move a hand gizmo)."),
+    mode: str = typer.Option("vr", help="kinesthetic (drag the backdrivable arm), vr (move a hand gizmo) or leader "
+                             "(move a leader arm by its joint sliders or its hand; the robot follows it)."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
     out: str = typer.Option(None, "--out", "-o", metavar="STORE", help="Store to append saved episodes to (created if missing).",
                              show_default="none: nothing is saved"),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
     operator: str = typer.Option("human", help="Who demonstrates (the episode table's operator column)."),
-    ik: str = typer.Option("mink", help="VR mode IK backend: mink or placo."),
+    ik: str = typer.Option("mink", help="VR and leader modes: IK backend, mink or placo."),
     robot: Path = robot_option(),
     host: str = typer.Option("127.0.0.1", help="Address to listen on (127.0.0.1: this machine only)."),
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one)."),

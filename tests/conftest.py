@@ -107,3 +107,23 @@ def one_line_error(capsys: pytest.CaptureFixture[str]):
         return err.strip()
 
     return check
+
+
+@pytest.fixture
+def replays():
+    """``check(task, episode)``: from the episode's first recorded ``sim.state``, stepping its recorded ``action``
+    reproduces every recorded state bit for bit (a human recording replays as it was recorded)."""
+    from demo.sim import make_env
+
+    def check(task: str, episode: dict[str, np.ndarray]) -> None:
+        env = make_env(task)
+        try:
+            env.reset(0)
+            env.set_state(episode["sim.state"][0])
+            for t in range(len(episode["action"]) - 1):
+                env.step(episode["action"][t])
+                np.testing.assert_array_equal(env.get_state(), episode["sim.state"][t + 1], err_msg=f"step {t}")
+        finally:
+            env.close()
+
+    return check

@@ -56,7 +56,10 @@ def state_mismatch(model: mujoco.MjModel, state: np.ndarray) -> str | None:
 class MujocoScene:
     """The model's visible geoms in a viser scene; :meth:`show` poses them from a state vector."""
 
-    def __init__(self, scene: Any, model: mujoco.MjModel, root: str = "/sim"):
+    def __init__(self, scene: Any, model: mujoco.MjModel, root: str = "/sim", only_bodies: set[int] | None = None,
+                 opacity: float | None = None):
+        """``only_bodies``: draw the geoms of these bodies alone (None: every visible geom); ``opacity``: draw them
+        translucent (a ghost, e.g. ``demo teleop``'s leader arm)."""
         self.model = model
         self.data = mujoco.MjData(model)
         self.root = root
@@ -73,6 +76,10 @@ class MujocoScene:
             if rgba[3] <= 0:
                 continue
             body = int(model.geom_bodyid[g])
+            if only_bodies is not None and body not in only_bodies:
+                continue
+            if opacity is not None:
+                rgba = np.r_[rgba[:3], opacity].astype(np.float32)
             parent = root if body == 0 else self._body_frame(scene, body)
             handle = self._add_geom(scene, f"{parent}/geom_{g}", g, rgba)
             if handle is not None:
@@ -137,9 +144,13 @@ class MujocoScene:
         """Pose every moving body from one recorded ``sim.state`` (float64, mjSTATE_INTEGRATION)."""
         mujoco.mj_setState(self.model, self.data, np.asarray(state, dtype=np.float64), STATE_SPEC)
         mujoco.mj_kinematics(self.model, self.data)
+        self.show_data(self.data)
+
+    def show_data(self, data: mujoco.MjData) -> None:
+        """Pose every moving body as ``data``'s kinematics have it (``xpos``/``xquat`` computed)."""
         for body, handle in self.bodies.items():
-            handle.position = self.data.xpos[body].copy()
-            handle.wxyz = self.data.xquat[body].copy()
+            handle.position = data.xpos[body].copy()
+            handle.wxyz = data.xquat[body].copy()
 
     def camera_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """A viewpoint (position, look-at; world frame, metres) framing the moving bodies."""

@@ -20,6 +20,13 @@ Modes:
   the gizmo, the point the person drags. The recorded action is the configuration the arm reached
   one control step later (the label ``collect_kinesthetic`` uses).
 
+- ``leader``: leader-follower (ALOHA). The person moves a leader arm, a kinematic copy of the robot
+  shown as a ghost: by its joint sliders, or by the gizmo on its hand (IK on the leader's own
+  configuration, which persists between steps). The follower, the simulated robot, is commanded the
+  leader's joint positions through its position servos at the control rate, and the leader's joint
+  positions are the recorded action. The status line shows the tracking error (the largest joint gap
+  between the leader and the follower, mrad), and the panel the follower's ``front`` camera.
+
 Episodes are stored like ``collect_kinesthetic`` / ``collect_vr`` episodes (same keys, ``source``
 = the mode, ``operator``, ``unreachable_frames``), each appended atomically on **Stop & save**.
 The server listens on 127.0.0.1 unless told otherwise.
@@ -46,7 +53,10 @@ from demo.seeds import episode_seed
 from demo.sim.geometry import quat_conj, quat_mul
 from demo.view.scene import MujocoScene
 
-MODES = ("kinesthetic", "vr")
+MODES = ("kinesthetic", "vr", "leader")
+FOLLOWER_VIEW = ("front", 120, 160)  # leader mode: the follower's camera shown on the page (name, height, width)
+FOLLOWER_VIEW_EVERY = 5  # control steps between two renders of it
+LEADER_AT_HAND_M, LEADER_AT_HAND_RAD = 0.001, 0.01  # leader mode: its hand has reached the gizmo
 CAMERA_EYE, CAMERA_LOOK_AT = (1.15, -0.85, 0.7), (0.4, 0.0, 0.15)  # base frame, m
 
 
@@ -85,11 +95,13 @@ class TeleopSession:
         self.human = HumanConfig(
             task=config.task, source=config.mode, input="teleop", seed=config.seed, operator=config.operator,
             robot=config.robot, task_options=dict(config.task_options),
-            settings={"ik": config.ik} if config.mode == "vr" else {"soft_gain": config.soft_gain},
+            settings={"soft_gain": config.soft_gain} if config.mode == "kinesthetic" else {"ik": config.ik},
         )
         self.env = make_env_for(self.human.collect_config())
         self._lock = threading.RLock()
         self._stop = threading.Event()
+        self._syncing = False
+        self._renderer: mujoco.Renderer | None = None  # leader mode: the follower's camera (made in the simulation thread)
         self.store = None
         self.saved = 0  # before the store opens: close() reads it
         self.server = None
@@ -97,7 +109,11 @@ class TeleopSession:
         try:
             if config.out is not None:
                 self.store = open_output(config.out, human_store_meta(self.human, self.env), True, False)
-            self.retargeter = Retargeter(self.env, config.ik) if config.mode == "vr" else None
+            # vr: the IK turns the hand into joint targets; leader: the IK moves the leader arm, whose
+            # configuration (the retargeter's own, persisting between steps) is the follower's target.
+            self.retargeter = Retargeter(self.env, config.ik) if config.mode != "kinesthetic" else None
+            self.tracking_error = 0.0  # leader: max |leader - follower| over the arm joints (rad)
+            self._sliders_moved = self._gizmo_moved = False
             if config.mode == "kinesthetic":
                 self._soften_arm(config.soft_gain)
             self.episode_index = 0
@@ -148,10 +164,46 @@ class TeleopSession:
         for name, button in self.buttons.items():
             button.on_click(lambda event, name=name: self.press(name))
         self.status = gui.add_markdown(self._status_text())
+        self.sliders: list[Any] = []
+        if self.config.mode == "leader":
+            self._build_leader_panel(server)
+
+    def _build_leader_panel(self, server: Any) -> None:
+        """The leader arm: a ghost of the robot at the leader's configuration, one slider per joint, and the
+        follower's camera."""
+        from demo.sim.robot_model import is_descendant, joint_limits
+
+        env = self.env
+        arm_bodies = {int(env.model.jnt_bodyid[env.model.joint(j).id]) for j in env.robot.arm_joints}
+        robot = {b for b in range(env.model.nbody) if b in arm_bodies or any(is_descendant(env.model, b, a) for a in arm_bodies)}
+        self.ghost = MujocoScene(server.scene, env.model, root="/leader", only_bodies=robot, opacity=0.35)
+        self._ghost_data = mujoco.MjData(env.model)
+        limits = joint_limits(env.model, [env.model.joint(j).id for j in env.robot.arm_joints])
+        limits = np.where(np.isfinite(limits), limits, np.array([[-np.pi, np.pi]]))
+        folder = server.gui.add_folder("leader arm")
+        with folder:
+            for j, name in enumerate(env.robot.arm_joints):
+                slider = server.gui.add_slider(name, min=float(limits[j, 0]), max=float(limits[j, 1]), step=0.001,
+                                               initial_value=float(np.clip(self.retargeter.q[j], *limits[j])))
+                slider.on_update(lambda event, j=j: self._on_slider(j))
+                self.sliders.append(slider)
+        name, height, width = FOLLOWER_VIEW
+        self.follower_view = server.gui.add_image(np.zeros((height, width, 3), np.uint8), label=f"follower: {name} camera")
+        self._view_steps = 0
+
+    def _on_slider(self, j: int) -> None:
+        """A leader joint moved by its slider: the leader's configuration, and its hand (the gizmo) with it."""
+        with self._lock:
+            if self._syncing:
+                return
+            self.retargeter.q[j] = float(self.sliders[j].value)
+            self._sliders_moved = True
+            self.moved |= self.recording
 
     def _on_gizmo(self) -> None:
         with self._lock:
             self._hand_world = (np.array(self.gizmo.position, dtype=np.float64), np.array(self.gizmo.wxyz, dtype=np.float64))
+            self._gizmo_moved = True
             self.moved |= self.recording
 
     def allowed(self) -> dict[str, bool]:
@@ -174,14 +226,43 @@ class TeleopSession:
 
     def _status_text(self) -> str:
         state = f"recording, frame {len(self._frames)}" if self.recording else "idle (press Start to record)"
-        ik = "" if self.config.mode != "vr" else (" · hand reached" if self.last_ok else " · **hand pose unreachable**")
+        ik = {"vr": " · hand reached" if self.last_ok else " · **hand pose unreachable**",
+              "leader": f" · tracking error {1000 * self.tracking_error:.1f} mrad"}.get(self.config.mode, "")
         note = f" · {self.status_note}" if self.status_note else ""
         return f"episode {self.episode_index} · {state} · saved {self.saved}{ik}{note}"
 
     def _show(self) -> None:
         self.scene.show(self.env.get_state())
+        if self.config.mode == "leader" and getattr(self, "ghost", None) is not None:
+            self._show_leader()
         self.status.content = self._status_text()
         self._update_buttons()
+
+    def _show_leader(self) -> None:
+        """The ghost at the leader's configuration, the sliders at its joints, now and then the follower's view."""
+        env, q = self.env, self.retargeter.q
+        self._ghost_data.qpos[:] = env.data.qpos
+        self._ghost_data.qpos[env.arm_qadr] = q
+        mujoco.mj_kinematics(env.model, self._ghost_data)
+        self.ghost.show_data(self._ghost_data)
+        self._syncing = True  # setting a slider's value calls its on_update: not a person's move
+        try:
+            for slider, value in zip(self.sliders, q):
+                if abs(float(slider.value) - float(value)) > 5e-4:
+                    slider.value = float(value)
+        finally:
+            self._syncing = False
+
+    def _render_follower_view(self) -> None:
+        """Leader mode, every few control steps: the follower's camera on the page. The renderer is made in the
+        simulation thread and closed there (an OpenGL context belongs to the thread that made it)."""
+        self._view_steps += 1
+        if self._view_steps % FOLLOWER_VIEW_EVERY != 1:
+            return
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.env.model, *FOLLOWER_VIEW[1:])
+        self._renderer.update_scene(self.env.data, camera=FOLLOWER_VIEW[0])
+        self.follower_view.image = self._renderer.render()
 
     # ------------------------------------------------------------------ controls (thread-safe)
     @property
@@ -220,6 +301,16 @@ class TeleopSession:
         with self._lock:
             self._hand_world = world
             self.gizmo.position, self.gizmo.wxyz = world
+            self._gizmo_moved = True
+            self.moved |= self.recording
+
+    def set_leader(self, q: np.ndarray) -> None:
+        """Leader mode: put the leader arm at joint positions ``q`` (rad, arm_joints order), as its sliders do."""
+        if self.config.mode != "leader":
+            raise DemoError("--mode", f"set_leader moves the leader arm of --mode leader, not of {self.config.mode}")
+        with self._lock:
+            self.retargeter.q[:] = np.asarray(q, dtype=np.float64)
+            self._sliders_moved = True
             self.moved |= self.recording
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
@@ -278,7 +369,23 @@ class TeleopSession:
             env = self.env
             frame = env.frame() if self.recording else None
             hand_pos, hand_quat = self._hand_base()
-            if self.config.mode == "vr":
+            if self.config.mode == "leader":
+                # A leader arm stays where the person left it: the IK moves it only after its hand was dragged,
+                # until it is there (a step of IK moves it at most its joint speed limits allow).
+                if self._gizmo_moved:
+                    r = self.retargeter(hand_pos, hand_quat)
+                    self._gizmo_moved = not (r.pos_err < LEADER_AT_HAND_M and r.rot_err < LEADER_AT_HAND_RAD)
+                else:
+                    r = self.retargeter.hold()
+                if self._sliders_moved:  # the sliders moved the leader: its hand (the gizmo) follows it
+                    self._sliders_moved = False
+                    self._set_gizmo_to_leader()
+                command = np.r_[r.q, self.grip].astype(np.float32)
+                env.step(command)  # the follower's servos track the leader
+                self.tracking_error = float(np.max(np.abs(env.data.qpos[env.arm_qadr] - r.q)))
+                label, ok, err = command, r.ok, (r.pos_err, r.rot_err)
+                self.last_ok = r.ok
+            elif self.config.mode == "vr":
                 r = self.retargeter(hand_pos, hand_quat)
                 command = np.r_[r.q, self.grip].astype(np.float32)
                 env.step(command)
@@ -301,6 +408,13 @@ class TeleopSession:
                     self.status_note = "reached the episode length limit"
                     self._finish(save=True)
             self._show()
+            if self.config.mode == "leader":
+                self._render_follower_view()
+
+    def _set_gizmo_to_leader(self) -> None:
+        pos, quat = self.retargeter.ee_pose()
+        self._hand_world = (self.env.to_world(pos), self.env.quat_to_world(quat))
+        self.gizmo.position, self.gizmo.wxyz = self._hand_world
 
     def _hand_base(self) -> tuple[np.ndarray, np.ndarray]:
         pos_w, quat_w = self._hand_world
@@ -337,6 +451,14 @@ class TeleopSession:
             d.qfrc_applied[:] = 0.0
 
     def _run(self) -> None:
+        try:
+            self._loop()
+        finally:
+            if self._renderer is not None:
+                self._renderer.close()
+                self._renderer = None
+
+    def _loop(self) -> None:
         dt = 1.0 / self.env.fps
         next_t = time.perf_counter()
         while not self._stop.is_set():

@@ -5,6 +5,7 @@ Chromium renders the page (screenshot not blank)."""
 from __future__ import annotations
 
 import base64
+import contextlib
 import io
 import json
 import os
@@ -13,6 +14,7 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +75,29 @@ class ViserWireClient:
         self.ws.close()
 
 
+@contextlib.contextmanager
+def connected(config: TeleopConfig) -> Iterator[tuple[TeleopSession, ViserWireClient]]:
+    """A live session and a websocket client to it that has sent its first camera message (viser ignores a
+    client's input until then); both closed after."""
+    session = TeleopSession(config)
+    client = None
+    try:
+        client = ViserWireClient(session.port)
+        client.camera()
+        client.pump(1.5)
+        yield session, client
+    finally:
+        if client is not None:
+            client.close()
+        session.close()
+
+
+def save(session: TeleopSession, client: ViserWireClient) -> None:
+    """Click Stop & save, and wait for the episode to be stored."""
+    client.click("Stop & save")
+    assert _wait_until(lambda: session.saved == 1, 5.0)
+
+
 def _get(message: dict[str, Any], dotted: str) -> Any:
     value: Any = message
     for part in dotted.split("."):
@@ -90,16 +115,11 @@ def _wait_until(predicate, seconds: float) -> bool:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mode", ["vr", "kinesthetic"])
+@pytest.mark.parametrize("mode", ["vr", "kinesthetic", "leader"])
 def test_websocket_client_moves_the_ee_to_the_gizmo_and_records(tmp_path: Path, mode: str) -> None:
     out = tmp_path / "teleop.zarr"
-    session = TeleopSession(TeleopConfig(mode=mode, task="pick", out=str(out), port=0, operator="ws-client"))
-    client = None
-    try:
+    with connected(TeleopConfig(mode=mode, task="pick", out=str(out), port=0, operator="ws-client")) as (session, client):
         assert session.url.startswith("http://127.0.0.1:")
-        client = ViserWireClient(session.port)
-        client.camera()  # viser ignores a client's input until its first camera message
-        client.pump(1.5)
         gizmo = client.find("TransformControlsMessage")
         client.click("Start")
         assert _wait_until(lambda: session.recording, 5.0)
@@ -112,12 +132,7 @@ def test_websocket_client_moves_the_ee_to_the_gizmo_and_records(tmp_path: Path, 
         reached = _wait_until(lambda: np.linalg.norm(session.ee_pose()[0] - target) < 0.005, 20.0)
         error = np.linalg.norm(session.ee_pose()[0] - target)
         assert reached, f"EE is {error * 1000:.1f} mm from the gizmo"
-        client.click("Stop & save")
-        assert _wait_until(lambda: session.saved == 1, 5.0)
-    finally:
-        if client is not None:
-            client.close()
-        session.close()
+        save(session, client)
     store = EpisodeStore.open(out)
     row = store.episode_info(0)
     assert (row["source"], row["operator"], row["task"]) == (mode, "ws-client", "pick")
@@ -129,11 +144,68 @@ def test_websocket_client_moves_the_ee_to_the_gizmo_and_records(tmp_path: Path, 
     store.close()
 
 
+def test_leader_sliders_move_the_follower_which_records_the_leaders_joints(tmp_path: Path, replays) -> None:
+    """Leader mode by joint sliders (a websocket client sets one): the follower's servos track the leader, the
+    recorded actions are the leader's joint positions, the tracking error shrinks once it arrives, the ghost and
+    the follower's camera are on the page, and the episode replays from its first state."""
+    out = tmp_path / "leader.zarr"
+    with connected(TeleopConfig(mode="leader", task="pick", out=str(out), port=0)) as (session, client):
+        client.find("GuiImageMessage")  # the follower's camera, rendered as the simulation runs
+        assert _wait_until(lambda: np.asarray(session.follower_view.image).std() > 5, 10.0)
+        assert any(m["type"].endswith("Message") and str(_get(m, "name") or "").startswith("/leader")
+                   for m in client.messages)  # the leader arm's ghost
+        client.click("Start")
+        assert _wait_until(lambda: session.recording, 5.0)
+        slider = client.find("GuiSliderMessage", **{"props.label": "joint1"})
+        target = float(session.retargeter.q[0]) + 0.3
+        client.send(vm.GuiUpdateMessage(uuid=slider["uuid"], updates={"value": target}))
+        joint1 = session.env.arm_qadr[0]
+        assert _wait_until(lambda: abs(session.env.data.qpos[joint1] - target) < 0.01, 20.0)
+        assert _wait_until(lambda: session.tracking_error < 0.01, 10.0)
+        save(session, client)
+    with EpisodeStore.open(out) as store:
+        assert store.episode_info(0)["source"] == "leader"
+        ep = store.read_episode(0, ["action", "obs.joint_pos", "sim.state"])
+    assert np.isclose(ep["action"][:, 0], target, atol=1e-3).any()  # the leader's joint, recorded as the action
+    lag = ep["action"][:-1, 0] - ep["obs.joint_pos"][1:, 0]
+    assert np.abs(lag).max() > 0.01  # the follower lagged its leader while it moved
+    replays("pick", ep)
+
+@pytest.mark.slow
+def test_a_leader_session_driven_along_the_experts_targets_picks_the_cube(tmp_path: Path) -> None:
+    """The leader moved (in real time, through the library API the sliders use) along the scripted expert's joint
+    targets for the session's first episode: the follower picks the cube, and the saved episode says so."""
+    from demo.collect.scripted import CollectConfig, make_env_for, scripted_episode
+
+    config = CollectConfig(task="pick", episodes=1, seed=0)
+    env = make_env_for(config)
+    try:
+        expert, _ = scripted_episode(env, config, 0)  # episode_seed(0, 0): the session's first episode
+    finally:
+        env.close()
+    out = tmp_path / "leader.zarr"
+    session = TeleopSession(TeleopConfig(mode="leader", task="pick", out=str(out), port=0))
+    try:
+        session.press("start")
+        for action in expert["action"]:
+            session.set_leader(action[:-1])
+            session.press("close" if action[-1] > 0.5 else "open")
+            time.sleep(1.0 / session.env.fps)
+        time.sleep(1.0)  # the follower catches up and holds the cube
+        session.press("stop")
+        assert _wait_until(lambda: session.saved == 1, 5.0)
+    finally:
+        session.close()
+    with EpisodeStore.open(out) as store:
+        assert store.episode_info(0)["source"] == "leader" and bool(store.column("success")[0])
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary (apt-get install -y chromium); CI installs it")
-def test_page_renders_in_headless_chromium(tmp_path: Path) -> None:
+@pytest.mark.parametrize("mode", ["vr", "leader"])
+def test_page_renders_in_headless_chromium(tmp_path: Path, mode: str) -> None:
     from PIL import Image
 
-    session = TeleopSession(TeleopConfig(mode="vr", task="pick", port=0))
+    session = TeleopSession(TeleopConfig(mode=mode, task="pick", port=0))
     profile = tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)
     browser = subprocess.Popen(
         [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
