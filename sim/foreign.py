@@ -3,8 +3,9 @@
 A foreign environment is named by its Gymnasium id (``CartPole-v1``, ``demo/Reach-v0``; a
 ``module:`` prefix imports the module that registers it first, ``mypkg.envs:MyEnv-v0``), by a
 factory, ``module:function`` returning a ``gymnasium.Env``, or through a named adapter,
-``ADAPTER:TASK`` (:data:`ADAPTERS`: ``metaworld:pick-place-v3``, :mod:`demo.sim.metaworld`), with
-keyword arguments in every case. Its
+``ADAPTER:TASK`` (:data:`ADAPTERS`: ``metaworld:pick-place-v3``, :mod:`demo.sim.metaworld`;
+``process:NAME`` with ``python=PYTHON``, any of these run by another interpreter, :mod:`demo.sim.process_env`),
+with keyword arguments in every case. Its
 task name in a store or a run is ``env:<name>`` and its keyword arguments are the task options, so
 :func:`demo.sim.make_env` rebuilds it and ``demo eval RUN`` needs no flag to find it again.
 
@@ -48,7 +49,7 @@ DEFAULT_FPS = 10.0
 HORIZON_OPTION = "max_episode_steps"
 # Named adapters: ``--env NAME:TASK`` builds TASK with the adapter's own factory (a benchmark that needs
 # more than gymnasium.make: a compatibility fix, its task sets, its experts).
-ADAPTERS = {"metaworld": "demo.sim.metaworld:make"}
+ADAPTERS = {"metaworld": "demo.sim.metaworld:make", "process": "demo.sim.process_env:make"}
 
 
 def is_foreign(task: str | None) -> bool:
@@ -72,11 +73,12 @@ def make_gym(name: str, options: dict[str, Any]) -> gymnasium.Env:
     """The Gymnasium environment ``name`` (an id, ``module:id``, ``module:factory`` or ``ADAPTER:TASK``) built with
     ``options``."""
     name = name.removeprefix(ENV_PREFIX)
+    named, _, inner = name.partition(":")  # an adapter takes the rest of the name as it is (process:mod:id)
+    if named in ADAPTERS:
+        adapter, _, function = ADAPTERS[named].partition(":")
+        return getattr(importlib.import_module(adapter), function)(inner, **options)
     module, sep, attr = name.rpartition(":")
     where = f"--env {name}"
-    if module in ADAPTERS:
-        adapter, _, function = ADAPTERS[module].partition(":")
-        return getattr(importlib.import_module(adapter), function)(attr, **options)
     if sep:
         try:
             mod = importlib.import_module(module)
@@ -109,7 +111,7 @@ def instruction_of(name: str, env: gymnasium.Env) -> str:
     own = getattr(env.unwrapped, "instruction", None)
     if isinstance(own, str) and own.strip():
         return normalized(own)
-    module, _, task = name.removeprefix(ENV_PREFIX).rpartition(":")
+    module, _, task = name.removeprefix(ENV_PREFIX).partition(":")
     if module in ADAPTERS:
         described = getattr(importlib.import_module(ADAPTERS[module].partition(":")[0]), "instruction", None)
         if callable(described):
