@@ -50,6 +50,7 @@ from demo.collect.retarget import ArmFK
 from demo.errors import DemoError
 from demo.progress import Progress
 from demo.sim import RobotConfig, load_robot
+from demo.sim.robot_model import joint_limits
 
 LIMIT_TOL = 1e-3  # rad beyond a joint limit that still counts as inside (encoder noise)
 FAR_BEYOND = 1.0  # a value this many range widths beyond a joint's range is refused, not clipped
@@ -186,23 +187,34 @@ def resample_joints(track: JointTrack, fps: float) -> tuple[np.ndarray, np.ndarr
 def kinesthetic_episode(env: Any, track: JointTrack, seed: int, fk: ArmFK | None = None
                         ) -> tuple[Any, np.ndarray, np.ndarray]:
     """Play one joint track from ``env.reset(seed)``: (Episode, ik_ok [T,1], ik_error [T,2])."""
+    return play_joint_track(env, track, seed, lookahead=1, fk=fk)[:3]
+
+
+def play_joint_track(env: Any, track: JointTrack, seed: int, lookahead: int, fk: ArmFK | None = None
+                     ) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
+    """Play one joint track, resampled to the control rate, from ``env.reset(seed)`` with the arm at its first
+    configuration: control step ``t`` commands the recorded configuration of step ``t + lookahead`` (kinesthetic:
+    1, so the servos reproduce the motion; a leader arm: 0, the follower's target is where the leader is now),
+    clipped to the joint limits (an unlimited joint is not clipped) and flagged where clipping changed it.
+    Returns (Episode, ik_ok [T, 1], ik_error [T, 2], the commanded arm configurations [T, n_arm])."""
     q, grip = resample_joints(track, env.fps)
-    m = env.model
-    rng = m.jnt_range[[m.joint(j).id for j in env.robot.arm_joints]]
-    lo, hi = rng[:, 0], rng[:, 1]
+    limits = joint_limits(env.model, [env.model.joint(j).id for j in env.robot.arm_joints])
     env.reset(seed)
     env.set_arm(q[0])
     fk = fk or ArmFK(env)
     last = len(q) - 1
+    commanded: list[np.ndarray] = []
 
     def command_at(t: int) -> HumanCommand:
-        target = q[min(t + 1, last)]
-        clipped = np.clip(target, lo, hi)
+        target = q[min(t + lookahead, last)]
+        clipped = np.clip(target, limits[:, 0], limits[:, 1])
         excess = float(np.max(np.abs(target - clipped)))
+        commanded.append(clipped)
         pos, quat = fk(clipped)
         return HumanCommand(clipped, float(grip[min(t, last)]), np.r_[pos, quat], excess <= LIMIT_TOL, (0.0, excess))
 
-    return play_recording(env, seed, len(q), command_at)
+    episode, ik_ok, ik_err = play_recording(env, seed, len(q), command_at)
+    return episode, ik_ok, ik_err, np.asarray(commanded)
 
 
 def collect_kinesthetic(

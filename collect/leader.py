@@ -32,11 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from demo.collect.human import HumanCommand, play_recording
-from demo.collect.kinesthetic import LIMIT_TOL, JointTrack, parse_joint_csv, resample_joints
+from demo.collect.kinesthetic import JointTrack, parse_joint_csv, play_joint_track
 from demo.collect.retarget import ArmFK
 from demo.sim.robot import LeaderCalibration, RobotConfig
-from demo.sim.robot_model import joint_limits
 
 
 def calibration(robot: RobotConfig) -> LeaderCalibration:
@@ -54,26 +52,10 @@ def leader_episode(env: Any, track: JointTrack, seed: int, fk: ArmFK | None = No
                    ) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
     """Follow one calibrated leader track from ``env.reset(seed)``: (Episode, ik_ok [T, 1], ik_error [T, 2],
     tracking error [n_arm]: the mean |leader at k - follower at k + 1| per joint, rad)."""
-    q, grip = resample_joints(track, env.fps)
-    limits = joint_limits(env.model, [env.model.joint(j).id for j in env.robot.arm_joints])
-    env.reset(seed)
-    env.set_arm(np.clip(q[0], limits[:, 0], limits[:, 1]))
-    fk = fk or ArmFK(env)
-    last = len(q) - 1
-    commanded: list[np.ndarray] = []
-
-    def command_at(t: int) -> HumanCommand:
-        target = q[min(t, last)]
-        clipped = np.clip(target, limits[:, 0], limits[:, 1])
-        excess = float(np.max(np.abs(target - clipped)))
-        commanded.append(clipped)
-        pos, quat = fk(clipped)
-        return HumanCommand(clipped, float(grip[min(t, last)]), np.r_[pos, quat], excess <= LIMIT_TOL, (0.0, excess))
-
-    episode, ik_ok, ik_err = play_recording(env, seed, len(q), command_at)
+    episode, ik_ok, ik_err, commanded = play_joint_track(env, track, seed, lookahead=0, fk=fk)
     measured = episode.data["obs.joint_pos"].astype(np.float64)  # the follower at each frame, before its command
     steps = min(len(commanded), len(measured)) - 1
-    lag = np.abs(np.asarray(commanded[:steps]) - measured[1:steps + 1]) if steps > 0 else np.zeros((1, len(q[0])))
+    lag = np.abs(commanded[:steps] - measured[1:steps + 1]) if steps > 0 else np.zeros((1, commanded.shape[-1]))
     return episode, ik_ok, ik_err, lag.mean(axis=0)
 
 
