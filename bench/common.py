@@ -12,6 +12,35 @@ from typing import Any
 import numpy as np
 
 
+def interleaved_ms(calls: dict[str, Callable[[], Any]], seconds: float, min_rounds: int = 5, block: int = 1
+                   ) -> dict[str, np.ndarray]:
+    """Per-call wall time (ms) of each of ``calls``, called in turn round after round, for ``seconds`` and at
+    least ``min_rounds`` rounds, after two untimed warm-up calls each.
+
+    Interleaving makes every figure see the same machine: on a shared 2-core machine the load of
+    other processes changes by 2-5x within a minute, which would skew figures measured one after
+    the other.
+
+    ``block > 1``: each turn calls one of them ``block`` times in a row and times all but the first
+    call, which pays for reloading what the others evicted from the CPU's caches (a deployed policy
+    is queried alone, its weights warm).
+    """
+    for fn in calls.values():
+        fn()
+        fn()
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    start, rounds = time.perf_counter(), 0
+    while rounds < min_rounds or time.perf_counter() - start < seconds:
+        for name, fn in calls.items():
+            for call in range(block):
+                t0 = time.perf_counter()
+                fn()
+                if call > 0 or block == 1:
+                    times[name].append(time.perf_counter() - t0)
+        rounds += 1
+    return {name: np.array(ts) * 1e3 for name, ts in times.items()}
+
+
 def rate(fn: Callable[[], Any], items_per_call: float, min_seconds: float = 1.0, warmup: int = 2) -> dict[str, float]:
     """Call ``fn`` until ``min_seconds`` have passed; items per second over the timed calls.
 

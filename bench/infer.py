@@ -29,6 +29,7 @@ its kernels (a device synchronisation after it).
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 import time
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from demo.bench.common import machine
+from demo.bench.common import interleaved_ms, machine
 from demo.errors import DemoError
 from demo.evaluation.evaluate import execution_for, make_eval_env, resolve_target, run_episodes_inline, summarize
 from demo.policies.checkpoint import load_bundle
@@ -58,41 +59,25 @@ def time_interleaved(samplers: dict[str, Any], obs: torch.Tensor, seconds: float
                      block: int = 1) -> dict[str, dict[str, float]]:
     """Per-call wall time of each ``sampler.predict`` on ``obs``'s device, called in turn round after round.
 
-    Interleaving makes every figure see the same machine: on a shared 2-core machine the load of
-    other processes changes by 2-5x within a minute, which would skew figures measured one after
-    the other. Warm-up calls (tracing included) are not timed.
-
-    ``block > 1``: each turn calls one sampler ``block`` times in a row and times all but the first
-    call, which pays for reloading the weights the other samplers evicted from the CPU's caches. A
-    deployed policy is queried alone, its weights warm: with single calls in turn, a 14 MB denoiser
-    queried once measured 1.56 ms against 0.91 ms warm, while eight DDIM steps (seven of them warm)
-    barely changed (6.0 against 6.2 ms), which understated one-step sampling's speed-up 1.8x.
+    Interleaved and in blocks as :func:`demo.bench.common.interleaved_ms` times them; warm-up calls (tracing
+    included) are not timed. With ``block > 1`` each sampler's weights are warm: with single calls in turn, a
+    14 MB denoiser queried once measured 1.56 ms against 0.91 ms warm, while eight DDIM steps (seven of them
+    warm) barely changed (6.0 against 6.2 ms), which understated one-step sampling's speed-up 1.8x.
     """
     g = torch.Generator(device=obs.device).manual_seed(0)
     sync = torch.cuda.synchronize if obs.device.type == "cuda" else (lambda: None)
-    times: dict[str, list[float]] = {name: [] for name in samplers}
+
+    def query(sampler: Any) -> Callable[[], None]:
+        def once() -> None:
+            sampler.predict(obs, g)
+            sync()  # on CUDA, the call's kernels are counted in it
+        return once
+
     with torch.inference_mode():
-        for sampler in samplers.values():
-            sampler.predict(obs, g)
-            sampler.predict(obs, g)
-        sync()
-        start = time.perf_counter()
-        rounds = 0
-        while rounds < min_rounds or time.perf_counter() - start < seconds:
-            for name, sampler in samplers.items():
-                for call in range(block):
-                    t0 = time.perf_counter()
-                    sampler.predict(obs, g)
-                    sync()
-                    if call > 0 or block == 1:
-                        times[name].append(time.perf_counter() - t0)
-            rounds += 1
-    out = {}
-    for name, ts in times.items():
-        ms = np.array(ts) * 1e3
-        # the median resists bursts of load; the min is the floor the code reaches on a quiet core
-        out[name] = {"ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()), "ms_min": float(ms.min()), "calls": len(ms)}
-    return out
+        times = interleaved_ms({name: query(sampler) for name, sampler in samplers.items()}, seconds, min_rounds, block)
+    # the median resists bursts of load; the min is the floor the code reaches on a quiet core
+    return {name: {"ms_median": float(np.median(ms)), "ms_mean": float(ms.mean()), "ms_min": float(ms.min()),
+                   "calls": len(ms)} for name, ms in times.items()}
 
 
 class _EagerReference(torch.nn.Module):

@@ -15,6 +15,7 @@ inference; ``ratio`` = median inference / median round trip (1.0: the server cos
 
 from __future__ import annotations
 
+import contextlib
 import tempfile
 import threading
 import time
@@ -26,7 +27,7 @@ import numpy as np
 import torch
 from websockets.sync.client import connect
 
-from demo.bench.common import machine
+from demo.bench.common import interleaved_ms, machine
 from demo.deploy.protocol import decode, encode, pack_array
 from demo.deploy.server import PolicyServer, ServerConfig
 from demo.errors import DemoError
@@ -35,6 +36,8 @@ from demo.progress import Progress, Tick, or_silent
 
 POLICIES = ("bc", "act", "diffusion")
 TRAIN_STEPS = 20  # a few steps: a run directory with the policy's default network
+BLOCK = 5  # calls per turn, the first of each untimed (demo.bench.common.interleaved_ms)
+MIN_ROUNDS = 13  # at least 52 timed calls each
 
 
 @dataclass
@@ -113,7 +116,8 @@ def _measure(run_path: str, config: ServeBenchConfig) -> dict[str, Any]:
                 with torch.inference_mode():
                     local.chunk(frame)
 
-            times = _interleaved({"round_trip": round_trip, "inference": inference}, config.seconds)
+            times = {name: _percentiles(ms) for name, ms in interleaved_ms(
+                {"round_trip": round_trip, "inference": inference}, config.seconds, MIN_ROUNDS, BLOCK).items()}
         loaded = _under_load(server.url, message, config.clients, min(config.seconds, 5.0), config.seed)
     finally:
         server.close()
@@ -126,60 +130,41 @@ def _measure(run_path: str, config: ServeBenchConfig) -> dict[str, Any]:
     }
 
 
-def _interleaved(calls: dict[str, Any], seconds: float, block: int = 5) -> dict[str, dict[str, float]]:
-    """Per-call wall time (ms) of each of ``calls``, ``block`` calls each in turn, round after round (the first of
-    each block, which reloads what the other evicted from the caches, is not timed)."""
-    for fn in calls.values():
-        fn()
-        fn()
-    ms: dict[str, list[float]] = {name: [] for name in calls}
-    start = time.perf_counter()
-    while time.perf_counter() - start < seconds or min(len(v) for v in ms.values()) < 50:
-        for name, fn in calls.items():
-            for i in range(block):
-                t0 = time.perf_counter()
-                fn()
-                if i:
-                    ms[name].append(1000 * (time.perf_counter() - t0))
-    return {name: _percentiles(np.array(v)) for name, v in ms.items()}
-
-
 def _percentiles(ms: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(ms)), "p90": float(np.percentile(ms, 90)), "p99": float(np.percentile(ms, 99)),
             "min": float(ms.min()), "calls": int(len(ms))}
 
 
 def _under_load(url: str, message: bytes, clients: int, seconds: float, seed: int) -> float:
-    """Queries per second answered to ``clients`` clients sending back to back for ``seconds``."""
+    """Queries per second answered to ``clients`` clients sending back to back for ``seconds``, counted from the
+    moment every one of them is connected."""
     counts = [0] * clients
     errors: list[str] = []
-    go = threading.Barrier(clients + 1)
-    deadline = [0.0]
+    connected = threading.Barrier(clients + 1)
+    stop = threading.Event()
 
     def client(i: int) -> None:
         try:
             with connect(url, max_size=2**26) as ws:
                 ws.send(encode({"type": "reset", "seed": seed + i}))
                 decode(ws.recv())
-                go.wait()
-                while time.perf_counter() < deadline[0]:
+                connected.wait()
+                while not stop.is_set():
                     ws.send(message)
                     decode(ws.recv())
                     counts[i] += 1
         except Exception as exc:  # noqa: BLE001 - reported after the threads join
             errors.append(str(exc))
-            go.abort()
+            connected.abort()
 
     threads = [threading.Thread(target=client, args=(i,), daemon=True) for i in range(clients)]
     for t in threads:
         t.start()
-    deadline[0] = time.perf_counter() + seconds + 1e9  # set for real once every client is connected
-    try:
-        go.wait()
-    except threading.BrokenBarrierError:
-        pass
+    with contextlib.suppress(threading.BrokenBarrierError):  # a client failed: reported below
+        connected.wait()
     start = time.perf_counter()
-    deadline[0] = start + seconds
+    stop.wait(seconds)
+    stop.set()
     for t in threads:
         t.join()
     if errors:
