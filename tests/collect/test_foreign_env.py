@@ -17,57 +17,6 @@ from demo.seeds import episode_seed
 from demo.sim import make_env
 from demo.store import EpisodeStore
 
-# The worked example of docs/environments.md: a point that must reach a goal, and its expert.
-POINT_REACH = textwrap.dedent('''
-    import gymnasium as gym
-    import numpy as np
-
-
-    class PointReach(gym.Env):
-        """A point in the unit square moves towards a goal; success within 5 cm of it."""
-
-        metadata = {"render_modes": [], "render_fps": 10}
-
-        def __init__(self, speed: float = 0.05):
-            self.speed = speed
-            self.observation_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)  # position, goal
-            self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)  # velocity, in speed units
-
-        def reset(self, *, seed=None, options=None):
-            super().reset(seed=seed)
-            self.pos, self.goal = self.np_random.uniform(-0.8, 0.8, (2, 2))
-            return self._obs(), {}
-
-        def step(self, action):
-            self.pos = np.clip(self.pos + self.speed * np.clip(action, -1, 1), -1, 1)
-            success = bool(np.linalg.norm(self.pos - self.goal) < 0.05)
-            return self._obs(), float(success), success, False, {"is_success": success}
-
-        def _obs(self):
-            return np.r_[self.pos, self.goal].astype(np.float32)
-
-
-    def expert(obs, env):
-        """Head for the goal at full speed (slower when close)."""
-        return np.clip((obs[2:] - obs[:2]) / 0.05, -1.0, 1.0)
-
-
-    gym.register("PointReach-v0", entry_point=PointReach, max_episode_steps=60)
-''')
-
-
-@pytest.fixture()
-def user_module(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str:
-    """The example as a user's own module, importable here and in worker processes."""
-    folder = tmp_path / "user"
-    folder.mkdir()
-    (folder / "point_reach.py").write_text(POINT_REACH)
-    monkeypatch.syspath_prepend(str(folder))
-    monkeypatch.setenv("PYTHONPATH", str(folder) + (":" + sys.path[0] if sys.path[0] else ""))
-    yield "point_reach"
-    sys.modules.pop("point_reach", None)
-
-
 def collect(out: Path, *extra: str, episodes: int = 12, env: str = "point_reach:PointReach-v0") -> int:
     return main(["collect", "--env", env, "--expert", "point_reach:expert", "--episodes", str(episodes),
                  "--seed", "3", "--out", str(out), *extra])

@@ -20,34 +20,27 @@ from demo.errors import DemoError
 from demo.sim.process_env import ProcessEnv
 from demo.store import EpisodeStore
 
-POINT = textwrap.dedent('''
+DICT_POINT = textwrap.dedent('''
     import gymnasium as gym
     import numpy as np
+    from point_reach import PointReach
 
 
-    class Point(gym.Env):
-        """A point to move onto a goal, observed as gym-aloha observes: a Dict with a nested camera."""
+    class DictPoint(PointReach):
+        """conftest's PointReach observed as gym-aloha observes: a Dict with a nested camera; a numpy scalar in
+        its info."""
 
-        metadata = {"render_modes": [], "render_fps": 10}
-
-        def __init__(self, speed=0.1):
-            self.speed = speed
+        def __init__(self, speed=0.05):
+            super().__init__(speed)
             self.observation_space = gym.spaces.Dict({
                 "agent_pos": gym.spaces.Box(-1.0, 1.0, (2,), np.float64),
                 "goal": gym.spaces.Box(-1.0, 1.0, (2,), np.float64),
                 "pixels": gym.spaces.Dict({"top": gym.spaces.Box(0, 255, (8, 8, 3), np.uint8)}),
             })
-            self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
-
-        def reset(self, *, seed=None, options=None):
-            super().reset(seed=seed)
-            self.pos, self.goal = self.np_random.uniform(-0.8, 0.8, (2, 2))
-            return self._obs(), {}
 
         def step(self, action):
-            self.pos = np.clip(self.pos + self.speed * np.clip(action, -1, 1), -1, 1)
-            success = bool(np.linalg.norm(self.pos - self.goal) < 0.05)
-            return self._obs(), float(success), False, False, {"is_success": success, "distance": np.float32(0.5)}
+            obs, reward, terminated, truncated, info = super().step(action)
+            return obs, reward, terminated, truncated, {**info, "distance": np.float32(np.linalg.norm(self.pos - self.goal))}
 
         def _obs(self):
             image = np.zeros((8, 8, 3), np.uint8)
@@ -56,22 +49,22 @@ POINT = textwrap.dedent('''
 
 
     def expert(obs, env):
-        return np.clip((obs["goal"] - obs["agent_pos"]) / 0.1, -1.0, 1.0)
+        return np.clip((obs["goal"] - obs["agent_pos"]) / 0.05, -1.0, 1.0)
 
 
-    gym.register("point_ns/Point-v0", entry_point=Point, max_episode_steps=40)
+    gym.register("point_ns/Point-v0", entry_point=DictPoint, max_episode_steps=60)
 ''')
 
 
 @pytest.fixture
-def point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    """The environment as a user's package ``point_ns`` (registering ``point_ns/Point-v0`` on import), on the
-    path of this process and of the worker it starts."""
-    (tmp_path / "point_ns").mkdir()
-    (tmp_path / "point_ns" / "__init__.py").write_text(POINT)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
-    return tmp_path
+def point(user_module: str, tmp_path: Path) -> Path:
+    """The environment as a user's package ``point_ns`` (registering ``point_ns/Point-v0`` on import) beside
+    conftest's ``point_reach``, on the path of this process and of the worker it starts."""
+    package = tmp_path / "user" / "point_ns"
+    package.mkdir()
+    (package / "__init__.py").write_text(DICT_POINT)
+    yield package
+    sys.modules.pop("point_ns", None)
 
 
 def collect(out: Path, env: str, *options: str) -> None:
