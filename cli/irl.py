@@ -1,5 +1,6 @@
 """`demo irl train`: reinforcement learning on the tasks' Gymnasium environments: PPO on the dense task
-reward (or a learned one: reward transfer), GAIL and AIRL, and linear-reward IRL (MaxEnt, apprenticeship)."""
+reward (or a learned one: reward transfer), residual RL on a frozen imitation run, GAIL and AIRL, and
+linear-reward IRL (MaxEnt, apprenticeship)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from demo.cli.options import json_option, overwrite_option, robot_option
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
-from demo.rl.config import ACTIONS, AdversarialConfig, LinearIRLConfig, PPOConfig
+from demo.rl.config import ACTIONS, AdversarialConfig, LinearIRLConfig, PPOConfig, ResidualConfig
 from demo.store import EpisodeStore
 
 irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
@@ -21,7 +22,8 @@ irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PP
 app.add_typer(irl_app, name="irl")
 
 ALGOS = algorithms.names(algorithms.IRL)
-_P, _A, _L = PPOConfig(), AdversarialConfig(), LinearIRLConfig()  # the defaults live in the library's dataclasses
+_P, _A, _L, _R = PPOConfig(), AdversarialConfig(), LinearIRLConfig(), ResidualConfig()
+FROM_SIMULATOR = ("ppo", "residual")  # the algorithms that learn from the reward alone, without a store  # the defaults live in the library's dataclasses
 # Which option sets which field (tests/rl/test_cli_options.py holds these to the dataclasses and the command).
 FIELD_OPTIONS = {
     "PPOConfig": {"task": "--task", "robot": "--robot", "out": "--out", "reward": "--reward", "action": "--action",
@@ -31,6 +33,7 @@ FIELD_OPTIONS = {
     "AdversarialConfig": {"data": "STORE", "kind": "--algo", "demos": "--demos", "inputs": "--inputs",
                           "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
                           "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
+    "ResidualConfig": {"init": "--init", "scale": "--scale"},
     "LinearIRLConfig": {"data": "STORE", "method": "--algo", "demos": "--demos", "inner_iterations": "--inner-iterations"},
 }
 
@@ -43,15 +46,21 @@ def train(
                              show_default=False),
     algo: str = typer.Option("ppo", help=f"Algorithm: {', '.join(ALGOS)}."),
     task: str = typer.Option(None, help="Task.", show_default="the store's; ppo: reach"),
-    reward: str = typer.Option("task", metavar="task|RUN", help="ppo: the dense task reward (demo.rl.rewards), or the "
-                               "reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
+    reward: str = typer.Option("task", metavar="task|RUN", help="ppo, residual: the dense task reward (demo.rl.rewards), "
+                               "or the reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
+    init: str = typer.Option(None, "--init", metavar="RUN", help="residual: the imitation run to correct (its task, "
+                             "options, robot and actions; it stays frozen).", show_default=False),
+    scale: float = typer.Option(_R.scale, help="residual: the largest correction, as a fraction of each action entry's "
+                                "half-range in the base run's data."),
     robot: str = robot_option(),
     action: str = typer.Option(_P.action, metavar="|".join(ACTIONS), help="The policy's actions: ee7 deltas "
                                "(through the env's IK) or joint targets relative to the measured joints."),
     obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys.", show_default="state keys without velocities"),
-    steps: int = typer.Option(_P.total_steps, help="Environment (control) steps in all."),
+    steps: int = typer.Option(None, help="Environment (control) steps in all.",
+                              show_default=f"{_P.total_steps:,}; residual: {_R.rl.total_steps:,}"),
     envs: int = typer.Option(_P.num_envs, help="Environments stepped in turn."),
-    rollout: int = typer.Option(_P.num_steps, help="Control steps per environment per PPO iteration."),
+    rollout: int = typer.Option(None, help="Control steps per environment per PPO iteration.",
+                                show_default=f"{_P.num_steps}; residual: {_R.rl.num_steps}"),
     lr: float = typer.Option(_P.lr, help="Adam learning rate of the policy and critic (annealed to 0)."),
     ent_coef: float = typer.Option(_P.ent_coef, help="Entropy bonus coefficient."),
     seed: int = typer.Option(_P.seed, help="Seed of initialisation, sampling and the training episodes."),
@@ -76,17 +85,26 @@ def train(
 ) -> None:
     """Train a policy by RL in the simulator; every run directory evaluates with demo eval RUN."""
     algorithms.algorithm(algo, algorithms.IRL)  # an unknown --algo fails here, naming the choices
-    if (algo == "ppo") != (store is None):
-        raise DemoError("STORE", "ppo learns from the reward, not from a store" if algo == "ppo" else
+    if (algo in FROM_SIMULATOR) != (store is None):
+        raise DemoError("STORE", f"{algo} learns from the reward, not from a store" if algo in FROM_SIMULATOR else
                         f"{algo} learns from demonstrations: name a STORE")
-    if algo != "ppo" and reward != "task":
-        raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to ppo")
+    if algo not in FROM_SIMULATOR and reward != "task":
+        raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to {' and '.join(FROM_SIMULATOR)}")
+    if (algo == "residual") != (init is not None):
+        raise DemoError("--init", "residual corrects the imitation run --init names" if algo == "residual" else
+                        f"--init names the run a residual corrects, not a start for {algo}")
+    if algo == "residual" and (task or robot):
+        raise DemoError("--task", "a residual runs on its base run's task and robot")
+    defaults = _R.rl if algo == "residual" else _P
     rl = PPOConfig(task=task or (_store_task(store) if store else "reach"), robot=robot, out=str(out), reward=reward,
-                   action=action, obs_keys=_keys(obs_keys),
-                   seed=seed, total_steps=steps, num_envs=envs, num_steps=rollout, lr=lr, ent_coef=ent_coef,
+                   action=action, obs_keys=_keys(obs_keys), seed=seed,
+                   total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
+                   num_steps=defaults.num_steps if rollout is None else rollout, lr=lr, ent_coef=ent_coef,
                    eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
     if algo == "ppo":
-        config: PPOConfig | AdversarialConfig | LinearIRLConfig = rl
+        config: PPOConfig | AdversarialConfig | LinearIRLConfig | ResidualConfig = rl
+    elif algo == "residual":
+        config = ResidualConfig(rl=rl, init=init, scale=scale)
     elif algo in ("gail", "airl"):
         config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
                                    init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,

@@ -18,6 +18,9 @@ as it was trained:
   normalised action units). A multimodal policy then stays on the mode it chose, so ensembling
   averages chunks of one mode instead of two. The first query of an episode keeps the first draw.
 
+A residual (:mod:`demo.policies.residual`, trained by RL on a frozen policy) adds its correction to the
+merged action before the binary commands are rounded.
+
 An instruction-conditioned policy (:mod:`demo.policies.instruction`) is told its episode's
 instruction at :meth:`PolicyActor.reset`: the one set on the actor (``demo eval --instruction``), else
 the environment's own (``env.instruction``: a task set's member's, e.g. Meta-World's task as a sentence).
@@ -42,6 +45,7 @@ from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import Policy
 from demo.policies.relative import RelativeActions
+from demo.policies.residual import Residual
 
 
 @dataclass
@@ -92,6 +96,7 @@ class PolicyActor:
         adapter: ActionAdapter | None = None,
         relative: RelativeActions | None = None,
         tokenizer: InstructionTokenizer | None = None,
+        residual: Residual | None = None,
     ):
         execution.check(policy.spec.horizon)
         self.policy = policy.eval()
@@ -100,6 +105,7 @@ class PolicyActor:
         self.adapter = adapter
         self.relative = relative
         self.tokenizer = tokenizer
+        self.residual = residual  # a correction added to every action (demo.policies.residual)
         self.instruction: str | None = None  # told to every episode (else the environment's own)
         self.tokens: np.ndarray | None = None  # [1, max_tokens] of the episode's instruction
         self.n_obs, self.horizon = policy.spec.n_obs, policy.spec.horizon
@@ -169,6 +175,14 @@ class PolicyActor:
 
     def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
         """The policy's action for this frame (its own representation); advances one step."""
+        base = self.base_action(frame)
+        if self.residual is not None:
+            base = base + self.residual.correction(frame, base)
+        return self.finish(base)
+
+    def base_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's own action for this frame, chunks merged, before a residual's correction and the
+        binary commands (:meth:`finish`); advances one step."""
         self._observe(frame)
         t = self.t
         if t - self.last_query >= self.execution.execute:
@@ -185,7 +199,11 @@ class PolicyActor:
             w = np.exp(-self.execution.ensemble * np.arange(len(acts)))
             action = (w[:, None] * acts).sum(axis=0) / w.sum()
         self.t += 1
-        action = action.astype(np.float32)
+        return action.astype(np.float32)
+
+    def finish(self, action: np.ndarray) -> np.ndarray:
+        """An action as it is executed: the binary dims (``ExecConfig.binary``) made 0 or 1."""
+        action = np.asarray(action, np.float32).copy()
         if self.execution.binary:
             dims = list(self.execution.binary)
             action[dims] = (action[dims] >= 0.5).astype(np.float32)

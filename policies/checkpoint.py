@@ -48,6 +48,7 @@ from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.policy import Policy, PolicySpec, build_policy, config_to_json, policy_config
 from demo.policies.relative import RelativeActions
+from demo.policies.residual import Residual, load_residual
 from demo.policies.visuomotor import encoder_record
 
 RUN_FORMAT = "demo-run"
@@ -75,6 +76,7 @@ class PolicyBundle:
     path: Path | None = None
     relative: RelativeActions | None = None
     tokenizer: InstructionTokenizer | None = None  # an instruction-conditioned policy's (demo.policies.instruction)
+    residual: Residual | None = None  # a correction trained by RL on top of the policy (demo.policies.residual)
 
     @property
     def task(self) -> dict[str, Any]:
@@ -86,7 +88,7 @@ class PolicyBundle:
 
     def actor(self, execution: ExecConfig | None = None, adapter: Any = None) -> PolicyActor:
         return PolicyActor(self.policy, self.obs_spec, self.obs_norm, self.action_norm, execution or self.execution,
-                           adapter, self.relative, self.tokenizer)
+                           adapter, self.relative, self.tokenizer, self.residual)
 
 
 def policy_record(
@@ -238,10 +240,12 @@ def robot_home(run_dir: str | Path | None, index: int) -> Path | None:
 
 
 def save_policy(
-    run_dir: str | Path, weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer, action_norm: MinMaxNormalizer
+    run_dir: str | Path, weights: dict[str, torch.Tensor], obs_norm: MinMaxNormalizer, action_norm: MinMaxNormalizer,
+    extra: dict[str, torch.Tensor] | None = None,
 ) -> None:
-    """Write the evaluation weights and the normalisers to ``policy.safetensors``."""
-    tensors = policy_tensors(weights, obs_norm, action_norm)
+    """Write the evaluation weights and the normalisers (and ``extra`` tensors, e.g. a residual's, under
+    their own names) to ``policy.safetensors``."""
+    tensors = {**policy_tensors(weights, obs_norm, action_norm), **(extra or {})}
     _write(Path(run_dir) / POLICY_FILE, lambda tmp: save_file(tensors, str(tmp), metadata={"format": RUN_FORMAT}))
 
 
@@ -328,7 +332,14 @@ def _assemble(run: dict[str, Any], parts: tuple[Any, ...], tensors: dict[str, to
     if obs_norm.dim != obs_spec.dim or action_norm.dim != action.dim:
         raise DemoError(path, "normaliser sizes do not match the policy's observation/action sizes")
     policy.to(device).eval()
-    return PolicyBundle(algo, policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative, tokenizer)
+    residual = None
+    if run.get("residual") is not None:
+        try:
+            residual = load_residual(run["residual"], tensors, action.dim)
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise DemoError(path, f"does not match the residual in {RUN_FILE} ({str(exc).splitlines()[0][:160]})") from None
+    return PolicyBundle(algo, policy, obs_spec, obs_norm, action_norm, action, execution, run, run_dir, relative, tokenizer,
+                        residual)
 
 
 def _check_record(obs: ObsSpec, spec: PolicySpec, action: ActionSpec, relative: RelativeActions | None,

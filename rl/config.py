@@ -126,6 +126,26 @@ class AdversarialConfig:
 
 
 @dataclass
+class ResidualConfig:
+    """Residual RL on a frozen imitation run (:mod:`demo.rl.residual`); the task, options, robot and action
+    representation are the base run's, the PPO settings ``rl``'s."""
+
+    rl: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=160, init_log_std=-1.0))
+    init: str = ""  # the imitation run directory the residual corrects
+    scale: float = 0.1  # the largest correction: this fraction of each action entry's half-range in the base's data
+
+    def check(self) -> None:
+        self.rl.check()
+        if not self.init:
+            raise DemoError("--init", "name the imitation run the residual corrects")
+        if not 0 < self.scale <= 1:
+            raise DemoError("--scale", f"the residual's bound is a fraction in (0, 1] of each action's range, got {self.scale}")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"rl": self.rl.to_json(), "init": self.init, "scale": self.scale}
+
+
+@dataclass
 class LinearIRLConfig:
     rl: PPOConfig = field(default_factory=PPOConfig)
     data: str = ""

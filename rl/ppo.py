@@ -139,13 +139,13 @@ class EnvPool:
     """``n`` task environments (:class:`demo.gym.env.DemoEnv`) stepped in turn, each reset as its
     episode ends, from the RL seed stream (module docstring)."""
 
-    def __init__(self, config: PPOConfig, n: int):
-
+    def __init__(self, config: PPOConfig, n: int, robot: Any = None):
+        """``robot``: a ``RobotConfig`` in place of ``config.robot`` (a residual run's, from its base run)."""
         self.config = config
         self.envs: list[DemoEnv] = []
         try:
             for _ in range(n):
-                self.envs.append(DemoEnv(config.task, robot=config.robot, action=config.action, hold_success_s=None,
+                self.envs.append(DemoEnv(config.task, robot=robot or config.robot, action=config.action, hold_success_s=None,
                                          store_layout=True,  # the store's names and shapes: the observation spec and rewards read them
                                          **config.task_options))
         except BaseException:
@@ -162,14 +162,17 @@ class EnvPool:
             if config.action == "joint_pos" else None
         self.episodes = 0
         self.frames: list[dict[str, np.ndarray]] = []
+        self.seeds = [0] * n  # each environment's current episode seed
+        self.obs: np.ndarray | None = None  # [N, D] the policy's input at :attr:`frames` (set by :func:`collect`)
 
     def _reset(self, i: int) -> dict[str, np.ndarray]:
-        seed = episode_seed(self.config.seed + RL_OFFSET, self.episodes)
+        self.seeds[i] = episode_seed(self.config.seed + RL_OFFSET, self.episodes)
         self.episodes += 1
-        return self.envs[i].reset(seed=seed)[0]
+        return self.envs[i].reset(seed=self.seeds[i])[0]
 
     def reset(self) -> list[dict[str, np.ndarray]]:
         self.frames = [self._reset(i) for i in range(len(self.envs))]
+        self.obs = None
         return self.frames
 
     def step(self, actions: np.ndarray) -> tuple[list[dict[str, np.ndarray]], np.ndarray, np.ndarray, np.ndarray,
@@ -262,38 +265,67 @@ class Agent:
             return dist.log_prob(torch.from_numpy(actions.astype(np.float32))).sum(-1).numpy()
 
 
-def collect(agent: Agent, pool: EnvPool, reward: TaskReward, action_norm: MinMaxNormalizer,
-            steps: int) -> Rollout:
+class Controller:
+    """What the Gaussian policy's actions mean: PPO's own are the whole command, normalised to [-1, 1]
+    (:func:`action_bounds`; relative to the measured joints for ``joint_pos``), read from the state vector.
+    A residual run puts a frozen policy underneath (:class:`demo.rl.residual.ResidualController`)."""
+
+    def __init__(self, pool: EnvPool, action_norm: MinMaxNormalizer):
+        self.pool, self.action_norm = pool, action_norm
+
+    @property
+    def obs_dim(self) -> int:
+        return self.pool.obs_spec.dim
+
+    def reset(self, i: int) -> None:
+        """Environment ``i`` has started a new episode (from ``pool.seeds[i]``)."""
+
+    def observe(self, i: int, frame: dict[str, np.ndarray]) -> np.ndarray:
+        """The policy's raw input for environment ``i``'s frame (called once per frame, in order)."""
+        return self.pool.obs_spec.vector(frame)
+
+    def command(self, actions: np.ndarray, frames: dict[str, np.ndarray]) -> np.ndarray:
+        """``[N, A]`` commands to execute for clipped normalised actions ``[N, A]`` drawn at ``frames`` (stacked)."""
+        executed = self.action_norm.unnormalize(actions)
+        if self.pool.relative is not None:
+            executed = executed + self.pool.relative.base(frames, executed.shape[1])
+        return executed
+
+
+def collect(agent: Agent, pool: EnvPool, controller: Controller, reward: TaskReward, steps: int) -> Rollout:
     """``steps`` control steps of every environment with the agent's stochastic policy."""
-    obs_spec, options = pool.obs_spec, pool.config.task_options
+    options = pool.config.task_options
     norm = agent.obs_norm
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("obs", "next_obs", "actions", "logprobs", "terminated",
                                                         "truncated", "success", "features", "starts")}
     before_all: list[dict[str, np.ndarray]] = []
     after_all: list[dict[str, np.ndarray]] = []
-    obs = obs_spec.concat(stack(pool.frames))
+    if pool.obs is None:  # fresh episodes: the controller starts them too
+        for i in range(len(pool.envs)):
+            controller.reset(i)
+        pool.obs = np.stack([controller.observe(i, f) for i, f in enumerate(pool.frames)])
+    obs = pool.obs
     for _ in range(steps):
         out["starts"].append(np.array([env.sim.steps == 0 for env in pool.envs]))
         before_all.append(stack(pool.frames))
         a, logp = agent.act(np.clip(norm.normalize(obs), -OBS_CLIP, OBS_CLIP))
-        executed = action_norm.unnormalize(np.clip(a, -1.0, 1.0))
-        if pool.relative is not None:
-            executed = executed + pool.relative.base(before_all[-1], executed.shape[1])
-        after, term, trunc, success, failed = pool.step(executed)
+        after, term, trunc, success, failed = pool.step(controller.command(np.clip(a, -1.0, 1.0), before_all[-1]))
         frames = stack(after)
         after_all.append(frames)
-        next_obs = obs_spec.concat(frames)
+        next_obs = np.stack([controller.observe(i, f) for i, f in enumerate(after)])
         out["obs"].append(obs)
         out["next_obs"].append(next_obs)
         obs = next_obs.copy()
         for i in np.flatnonzero(term | trunc):  # reset: the next step starts from the new episode's frame
-            obs[i] = obs_spec.vector(pool.frames[i])
+            controller.reset(i)
+            obs[i] = controller.observe(i, pool.frames[i])
         out["actions"].append(a)
         out["logprobs"].append(logp)
         out["terminated"].append(term)
         out["truncated"].append(trunc)
         out["success"].append(success)
         out["features"].append(reward.features(frames, failed, options))
+    pool.obs = obs
     arrays = {k: np.stack(v) for k, v in out.items()}
     task = arrays["features"] @ np.asarray(reward.weights)
     return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=stack(before_all), next_frames=stack(after_all))
@@ -375,16 +407,17 @@ class RLRun(Run):
     EVAL_LABEL = " (eval)"  # the progress field shows the training rollouts' success between evaluations
 
     def __init__(self, config: PPOConfig, *, name: str = "ppo", progress: Progress | None = None,
-                 overwrite: bool = False, command: str | None = None):
+                 overwrite: bool = False, command: str | None = None, robot: Any = None):
         config.check()
         super().__init__(config.out, seed=config.seed, threads=config.threads, stage=f"train {name}",
                          title=f"{name} on {config.task}", total_steps=config.iterations * config.batch,
                          monitor_episodes=config.eval_episodes, progress=progress, overwrite=overwrite, command=command)
         self.config, self.name = config, name
-        self.pool = EnvPool(config, config.num_envs)
+        self.pool = EnvPool(config, config.num_envs, robot)
         self.reward = task_reward(config.task, "--task")
         self.action_norm = action_bounds(config, self.pool.n_arm)
-        self.agent = Agent(config, self.pool.obs_spec.dim, self.pool.action_spec.dim)
+        self.controller = self.make_controller()
+        self.agent = Agent(config, self.controller.obs_dim, self.pool.action_spec.dim)
         self.rng = np.random.default_rng([config.seed, 0x990])
         self.scaler = RewardScaler(config.num_envs, config.gamma)
         self.steps = self.iteration = 0
@@ -404,6 +437,10 @@ class RLRun(Run):
             "task_reward": self.reward.to_json(),
             "versions": {"torch": torch.__version__, "numpy": np.__version__},
         }
+
+    def make_controller(self) -> Controller:
+        """What the agent's actions mean (PPO's own: the whole command)."""
+        return Controller(self.pool, self.action_norm)
 
     def close(self) -> None:
         try:
@@ -451,7 +488,7 @@ class RLRun(Run):
         if c.anneal_lr:
             for group in agent.optimizer.param_groups:
                 group["lr"] = c.lr * (1.0 - (it - 1) / c.iterations)
-        roll = collect(agent, pool, self.reward, self.action_norm, c.num_steps)
+        roll = collect(agent, pool, self.controller, self.reward, c.num_steps)
         collect_s = time.perf_counter() - t0
         self.steps += c.batch
         extra = before_update(roll) if before_update is not None else {}

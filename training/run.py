@@ -140,6 +140,10 @@ class Run:
         """What ``policy.safetensors`` holds: the weights evaluated, the observation and action normalisers."""
         raise NotImplementedError
 
+    def extra_tensors(self) -> dict[str, torch.Tensor]:
+        """Tensors saved in ``policy.safetensors`` beside the policy's own (a residual's); none by default."""
+        return {}
+
     def train_state(self, extra: dict[str, Any] | None) -> dict[str, Any]:
         """What ``train_state.pt`` holds besides nothing: everything a resumed run continues from."""
         raise NotImplementedError
@@ -233,7 +237,7 @@ class Run:
         if not self.is_main:
             return
         weights, obs_norm, action_norm = self.policy_weights()
-        ckpt.save_policy(self.out, weights, obs_norm, action_norm)
+        ckpt.save_policy(self.out, weights, obs_norm, action_norm, self.extra_tensors())
         ckpt.save_train_state(self.out, self.train_state(extra))
         self._saved_at = time.perf_counter()
         ckpt.write_json(self.out / ckpt.METRICS_FILE, self.metrics)

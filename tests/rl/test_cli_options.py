@@ -8,9 +8,9 @@ import dataclasses
 from demo import algorithms
 from demo.cli import irl as cli_irl
 from demo.cli.main import commands
-from demo.rl.config import AdversarialConfig, LinearIRLConfig, PPOConfig
+from demo.rl.config import AdversarialConfig, LinearIRLConfig, PPOConfig, ResidualConfig
 
-CONFIGS = {c.__name__: c for c in (PPOConfig, AdversarialConfig, LinearIRLConfig)}
+CONFIGS = {c.__name__: c for c in (PPOConfig, AdversarialConfig, LinearIRLConfig, ResidualConfig)}
 
 
 def test_every_mapped_option_exists_and_has_the_fields_default() -> None:
@@ -25,8 +25,11 @@ def test_every_mapped_option_exists_and_has_the_fields_default() -> None:
                 continue
             assert flag in options, f"demo irl train has no {flag}"
             default = getattr(config, field)
-            if flag in ("--algo", "--task", "--obs-keys", "--disc-obs-keys", "--robot", "--out"):
+            if flag in ("--algo", "--task", "--obs-keys", "--disc-obs-keys", "--robot", "--out", "--init"):
                 continue  # chosen per run (the algorithm, the store's task, parsed key lists, paths)
+            if flag in ("--steps", "--rollout"):  # per algorithm: None takes PPO's or the residual's default
+                assert options[flag].default is None, flag
+                continue
             assert options[flag].default == default, f"{flag}: {options[flag].default!r} != {name}.{field} = {default!r}"
 
 

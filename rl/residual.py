@@ -1,0 +1,150 @@
+"""Residual RL on a frozen imitation policy (ResiP: Ankile et al. 2024), top to bottom.
+
+``demo irl train --algo residual --init RUN --out RUN2`` keeps the imitation run ``RUN`` (BC with chunks,
+diffusion, ACT, a DAgger run: anything ``demo eval`` runs from state) exactly as it was trained and learns,
+by PPO (:mod:`demo.rl.ppo`), a bounded correction added to its every action
+(:mod:`demo.policies.residual`): the base policy keeps doing what the demonstrations taught, and RL only
+refines it where the demonstrations ran out. A correction at most ``scale`` of each action entry's
+half-range in the base's data cannot take the arm anywhere the base did not already go, which is what
+keeps the fine-tuned policy near its starting success while it learns.
+
+**Per control step** (:class:`ResidualController`): each environment has the base policy's own
+:class:`~demo.policies.actor.PolicyActor` (observation history, chunks, temporal ensembling); the base
+action ``b`` for the frame is merged from its chunks; the residual (PPO's Gaussian) reads ``[state, b]``,
+standardised by running statistics; the executed command is ``b + bound * clip(a, -1, 1)``, its binary
+gripper rounded as the base's execution rounds it. Nothing of the base is trained.
+
+**Reward**: the task's dense reward (:mod:`demo.rl.rewards`: pick's reach, lift and success terms), or
+with ``--reward RUN`` a reward an IRL run learned, as PPO takes them. The task, its options and the robot
+are the base run's. Training episodes come from the RL seed stream, disjoint from the demonstrations
+and from ``demo eval``.
+
+**Curves**: the monitor evaluates the corrected policy before the first update (the base policy's own
+success: the starting line, ``metrics["start"]``) and every ``eval_every`` iterations after it; the
+figure draws success and return against environment steps with the starting line, and the summary holds
+the lowest monitored success (how far fine-tuning ever fell below its start).
+
+The run directory evaluates with ``demo eval``: its ``run.json`` holds the base's policy record and a
+``residual`` section, ``policy.safetensors`` the base's weights unchanged and the residual's beside them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from demo.errors import DemoError
+from demo.evaluation.evaluate import pick_robot
+from demo.policies import checkpoint as ckpt
+from demo.policies.normalizer import MinMaxNormalizer
+from demo.policies.residual import Residual, residual_bound
+from demo.progress import Progress
+from demo.rl.config import ACTIONS, ResidualConfig
+from demo.rl.ppo import Controller, EnvPool, RLRun, learned_reward
+
+
+class ResidualController(Controller):
+    """The agent's actions as corrections of a frozen policy's (module docstring)."""
+
+    def __init__(self, pool: EnvPool, base: ckpt.PolicyBundle, bound: np.ndarray):
+        super().__init__(pool, base.action_norm)
+        self.base, self.bound = base, bound
+        self.actors = [base.actor() for _ in pool.envs]
+        self.base_actions = np.zeros((len(pool.envs), base.action.dim), np.float32)
+
+    @property
+    def obs_dim(self) -> int:
+        return self.pool.obs_spec.dim + self.base.action.dim
+
+    def reset(self, i: int) -> None:
+        self.actors[i].reset(self.pool.seeds[i], self.pool.envs[i])
+
+    def observe(self, i: int, frame: dict[str, np.ndarray]) -> np.ndarray:
+        self.base_actions[i] = self.actors[i].base_action(frame)
+        return np.concatenate([self.pool.obs_spec.vector(frame), self.base_actions[i]])
+
+    def command(self, actions: np.ndarray, frames: dict[str, np.ndarray]) -> np.ndarray:
+        return np.stack([actor.finish(base + self.bound * a)
+                         for actor, base, a in zip(self.actors, self.base_actions, actions)])
+
+
+class ResidualRun(RLRun):
+    """PPO on a residual over the frozen imitation policy ``config.init`` (module docstring)."""
+
+    def __init__(self, config: ResidualConfig, *, progress: Progress | None = None, overwrite: bool = False,
+                 command: str | None = None):
+        config.check()
+        self.base = ckpt.load_bundle(config.init)
+        self.scale = config.scale
+        rl = _rl_config(config, self.base)
+        robot = pick_robot(self.base, None)
+        super().__init__(rl, name="residual", progress=progress, overwrite=overwrite, command=command, robot=robot)
+        self.record.update({
+            "policy": self.base.run["policy"],  # the base policy, unchanged: demo eval rebuilds it from here
+            "residual": self.residual().to_json(),
+            "init": {"run": str(Path(config.init).resolve()), "algo": self.base.algo},
+            "data": self.base.run.get("data"),
+            "train": config.to_json(),
+        })
+        self.metrics["start"] = None
+
+    def make_controller(self) -> ResidualController:
+        return ResidualController(self.pool, self.base, residual_bound(self.base.action_norm, self.scale))
+
+    def residual(self) -> Residual:
+        """The correction as it is now (the agent's policy and observation statistics)."""
+        return Residual(self.agent.policy, self.pool.obs_spec, self.agent.obs_norm, self.controller.bound, self.scale)
+
+    def bundle(self) -> ckpt.PolicyBundle:
+        return dataclasses.replace(self.base, residual=self.residual(), run=self.record, path=self.out)
+
+    def policy_weights(self) -> tuple[dict[str, torch.Tensor], MinMaxNormalizer, MinMaxNormalizer]:
+        return self.base.policy.state_dict(), self.base.obs_norm, self.base.action_norm
+
+    def extra_tensors(self) -> dict[str, torch.Tensor]:
+        return self.residual().tensors()
+
+    def evaluate(self) -> dict[str, Any] | None:
+        entry = super().evaluate()
+        if entry is not None and self.metrics["start"] is None:
+            self.metrics["start"] = entry
+        return entry
+
+    def final_metrics(self) -> dict[str, Any]:
+        evals = [e["success_rate"] for e in self.metrics["eval"]]
+        start = self.metrics["start"] or {}
+        return {**super().final_metrics(), "start_success_rate": start.get("success_rate"),
+                "min_success_rate": min(evals) if evals else None}
+
+
+def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> Any:
+    """PPO's configuration for a residual over ``base``: its task, options and action representation."""
+    action = base.action.name
+    if action not in ACTIONS:
+        raise DemoError(config.init, f"acts in {action!r}; a residual corrects {' or '.join(ACTIONS)} actions "
+                                     "(demo convert the data and train the base in one of them)")
+    if base.obs_spec.images:
+        raise DemoError(config.init, "reads camera images; the residual's environments here run state policies only")
+    if base.tokenizer is not None:
+        raise DemoError(config.init, "follows instructions; a residual over an instruction-conditioned policy is not built")
+    task = base.task.get("name")
+    if not task:
+        raise DemoError(config.init, "records no task")
+    return dataclasses.replace(config.rl, task=task, task_options=dict(base.task.get("options") or {}), action=action)
+
+
+def train(config: ResidualConfig, *, progress: Progress | None = None, overwrite: bool = False,
+          command: str | None = None) -> dict[str, Any]:
+    """Residual RL into ``config.rl.out`` over the imitation run ``config.init``; returns the summary."""
+    with ResidualRun(config, progress=progress, overwrite=overwrite, command=command) as rl:
+        reward = None
+        if config.rl.reward != "task":
+            reward, rl.record["learned_reward"] = learned_reward(config.rl.reward, rl)
+        rl.open()
+        rl.evaluate()  # the starting line: the base policy with a residual that is still ~0
+        rl.learn(reward)
+        return rl.finish()

@@ -1,0 +1,121 @@
+"""Residual RL on a frozen imitation run (demo.rl.residual): the run directory holds the base unchanged and a
+bounded correction beside it, demo eval executes base + correction, and bad input fails in one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+from demo import algorithms
+from demo.errors import DemoError
+from demo.gym.env import DemoEnv
+from demo.policies import checkpoint as ckpt
+from demo.rl.config import PPOConfig, ResidualConfig
+from demo.rl.residual import train
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+
+
+@pytest.fixture(scope="module")
+def base_and_residual(reach_demos, tiny_bc_config, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A chunked, ensembled BC run on reach and a residual trained on it for two short PPO iterations."""
+    root = tmp_path_factory.mktemp("residual")
+    base = root / "bc"
+    algorithms.train("bc", tiny_bc_config(reach_demos(8), base, chunk=4, ensemble=0.01))
+    out = root / "residual"
+    train(ResidualConfig(rl=PPOConfig(out=str(out), total_steps=200, num_envs=2, num_steps=50, epochs=1, minibatches=2,
+                                      hidden=(16,), eval_episodes=2, eval_every=1), init=str(base), scale=0.1))
+    return base, out
+
+
+def test_the_run_keeps_the_base_and_records_the_starting_line(base_and_residual: tuple[Path, Path]) -> None:
+    base, out = base_and_residual
+    run, base_run = json.loads((out / "run.json").read_text()), json.loads((base / "run.json").read_text())
+    assert run["algo"] == "residual" and run["policy"] == base_run["policy"]
+    assert run["init"]["run"] == str(base.resolve()) and run["task"]["name"] == "reach"
+    # the base's weights are saved unchanged beside the residual's
+    saved, original = load_file(str(out / ckpt.POLICY_FILE)), load_file(str(base / ckpt.POLICY_FILE))
+    for key, value in original.items():
+        assert torch.equal(saved[key], value), key
+    assert any(k.startswith("residual.") for k in saved)
+    # the bound: 0.1 of each action entry's half-range in the base's data
+    bundle = ckpt.load_bundle(base)
+    expected = 0.1 * (bundle.action_norm.high - bundle.action_norm.low) / 2
+    np.testing.assert_allclose(run["residual"]["bound"], expected, rtol=1e-6)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["start"]["step"] == 0 and [e["step"] for e in metrics["eval"]] == [0, 100, 200]
+    final = metrics["final"]
+    assert final["start_success_rate"] == metrics["eval"][0]["success_rate"]
+    assert final["min_success_rate"] == min(e["success_rate"] for e in metrics["eval"])
+    assert (out / "curves.png").is_file()
+
+
+def _frames(steps: int = 30) -> list[dict[str, np.ndarray]]:
+    env = DemoEnv("reach", store_layout=True, pos_tol=0.04, rot_tol=0.4)
+    frame, _ = env.reset(seed=5)
+    out = [frame]
+    for t in range(steps - 1):  # a slow sweep of every joint: states the policy reacts to
+        frame, *_ = env.step(np.r_[frame["obs.joint_pos"] + 0.05 * np.sin(0.2 * t), 0.0].astype(np.float32))
+        out.append(frame)
+    env.close()
+    return out
+
+
+def test_evaluation_executes_base_plus_a_bounded_correction(base_and_residual: tuple[Path, Path]) -> None:
+    base_dir, out = base_and_residual
+    base, fine = ckpt.load_bundle(base_dir), ckpt.load_bundle(out)
+    assert base.residual is None and fine.residual is not None
+    frames = _frames()
+    a, b = base.actor(), fine.actor()
+    a.reset(0), b.reset(0)
+    for frame in frames:
+        plain, corrected = a.policy_action(frame), b.policy_action(frame)
+        np.testing.assert_allclose(corrected, plain + fine.residual.correction(frame, plain), atol=1e-5)
+    # a residual pushed as hard as it can go moves each entry by its bound, never further
+    with torch.no_grad():
+        fine.residual.policy.mean[-1].weight.mul_(1e4)
+        fine.residual.policy.mean[-1].bias.fill_(50.0)
+    a.reset(0), b.reset(0)
+    for frame in frames:
+        gap = b.policy_action(frame) - a.policy_action(frame)
+        np.testing.assert_allclose(np.abs(gap), fine.residual.bound, rtol=1e-4)
+
+
+def test_demo_eval_runs_it(base_and_residual: tuple[Path, Path], tmp_path: Path) -> None:
+    from demo.cli.main import main
+
+    js = tmp_path / "eval.json"
+    assert main(["eval", str(base_and_residual[1]), "--episodes", "2", "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["episodes"] == 2
+
+
+def test_a_damaged_residual_is_refused_in_one_line(base_and_residual: tuple[Path, Path], tmp_path: Path) -> None:
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(base_and_residual[1], bad)
+    tensors = load_file(str(bad / ckpt.POLICY_FILE))
+    tensors = {k: v for k, v in tensors.items() if not k.startswith("residual.mean.0.")}
+    save_file(tensors, str(bad / ckpt.POLICY_FILE))
+    with pytest.raises(DemoError, match="does not match the residual"):
+        ckpt.load_bundle(bad)
+    run = json.loads((bad / "run.json").read_text())
+    run["residual"]["bound"] = [0.1]
+    (bad / "run.json").write_text(json.dumps(run))
+    with pytest.raises(DemoError, match="bound"):
+        ckpt.load_bundle(bad)
+
+
+def test_bad_options_fail_in_one_line(base_and_residual: tuple[Path, Path], one_line_error, tmp_path: Path) -> None:
+    base = str(base_and_residual[0])
+    out = str(tmp_path / "r")
+    one_line_error(["irl", "train", "--algo", "residual", "--out", out], "--init")
+    one_line_error(["irl", "train", "--algo", "ppo", "--init", base, "--out", out], "--init", "ppo")
+    one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--task", "pick", "--out", out], "base run")
+    one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--scale", "2", "--out", out], "--scale")
+    one_line_error(["irl", "train", "--algo", "residual", "--init", str(tmp_path / "nothing"), "--out", out], "nothing")
