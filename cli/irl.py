@@ -30,7 +30,8 @@ FIELD_OPTIONS = {
                   "obs_keys": "--obs-keys", "seed": "--seed", "total_steps": "--steps", "num_envs": "--envs",
                   "num_steps": "--rollout", "lr": "--lr", "ent_coef": "--ent-coef", "eval_every": "--eval-every",
                   "eval_episodes": "--eval-episodes", "threads": "--threads"},
-    "AdversarialConfig": {"data": "STORE", "kind": "--algo", "demos": "--demos", "inputs": "--inputs",
+    "AdversarialConfig": {"data": "STORE", "kind": "--algo", "demos": "--demos", "inputs": "--inputs", "init": "--init",
+                          "scale": "--scale",
                           "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
                           "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
     "ResidualConfig": {"init": "--init", "scale": "--scale"},
@@ -48,10 +49,11 @@ def train(
     task: str = typer.Option(None, help="Task.", show_default="the store's; ppo: reach"),
     reward: str = typer.Option("task", metavar="task|RUN", help="ppo, residual: the dense task reward (demo.rl.rewards), "
                                "or the reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
-    init: str = typer.Option(None, "--init", metavar="RUN", help="residual: the imitation run to correct (its task, "
-                             "options, robot and actions; it stays frozen).", show_default=False),
-    scale: float = typer.Option(_R.scale, help="residual: the largest correction, as a fraction of each action entry's "
-                                "half-range in the base run's data."),
+    init: str = typer.Option(None, "--init", metavar="RUN", help="residual, gail: the imitation run to correct (its task, "
+                             "options, robot and actions; it stays frozen): the policy is a residual over it.",
+                             show_default=False),
+    scale: float = typer.Option(_R.scale, help="residual, gail --init: the largest correction, as a fraction of each "
+                                "action entry's half-range in the base run's data."),
     robot: str = robot_option(),
     action: str = typer.Option(_P.action, metavar="|".join(ACTIONS), help="The policy's actions: ee7 deltas "
                                "(through the env's IK) or joint targets relative to the measured joints."),
@@ -90,9 +92,10 @@ def train(
                         f"{algo} learns from demonstrations: name a STORE")
     if algo not in FROM_SIMULATOR and reward != "task":
         raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to {' and '.join(FROM_SIMULATOR)}")
-    if (algo == "residual") != (init is not None):
-        raise DemoError("--init", "residual corrects the imitation run --init names" if algo == "residual" else
-                        f"--init names the run a residual corrects, not a start for {algo}")
+    if algo == "residual" and init is None:
+        raise DemoError("--init", "residual corrects the imitation run --init names")
+    if init is not None and algo not in ("residual", "gail"):
+        raise DemoError("--init", f"names the imitation run a residual (residual, gail) corrects, not a start for {algo}")
     if algo == "residual" and (task or robot):
         raise DemoError("--task", "a residual runs on its base run's task and robot")
     defaults = _R.rl if algo == "residual" else _P
@@ -108,7 +111,7 @@ def train(
     elif algo in ("gail", "airl"):
         config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
                                    init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,
-                                   disc_obs_keys=_keys(disc_obs_keys))
+                                   disc_obs_keys=_keys(disc_obs_keys), init=init or "", scale=scale)
     else:
         config = LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner)
     with bars() as progress:

@@ -88,9 +88,10 @@ from demo.policies.gaussian import mlp
 from demo.policies.normalizer import OBS_CLIP
 from demo.policies.observation import ObsSpec
 from demo.progress import Progress
-from demo.rl.config import KINDS, AdversarialConfig
+from demo.rl.config import KINDS, AdversarialConfig, ResidualConfig
 from demo.rl.expert_data import ExpertData
 from demo.rl.ppo import MIN_STD, RLRun, Rollout
+from demo.rl.residual import ResidualRun
 from demo.rl.rewards import pearson
 from demo.sim.tasks import TASKS
 
@@ -206,8 +207,9 @@ class Adversary:
         e, agent = self.expert, self.rl.agent
         b = {"obs": self.obs[idx], "actions": e.actions[idx], "next_obs": self.next_obs[idx],
              "terminal": np.zeros(len(idx)),
-             # log pi(a_E|s_E) under the current policy, on the observations as the policy normalises them
-             "logpi": agent.logprob(np.clip(agent.obs_norm.normalize(e.obs[idx]), -OBS_CLIP, OBS_CLIP), e.actions[idx])}
+             # AIRL: log pi(a_E|s_E) under the current policy, on the observations as the policy normalises them
+             "logpi": agent.logprob(np.clip(agent.obs_norm.normalize(e.obs[idx]), -OBS_CLIP, OBS_CLIP), e.actions[idx])
+             if self.config.kind == "airl" else np.zeros(len(idx))}
         return {k: torch.as_tensor(np.asarray(v), dtype=torch.float32) for k, v in b.items()}
 
     def policy_batch(self, roll: Rollout) -> dict[str, torch.Tensor]:
@@ -302,17 +304,22 @@ def train(config: AdversarialConfig, *, progress: Progress | None = None, overwr
           command: str | None = None) -> dict[str, Any]:
     """GAIL or AIRL on the demonstrations ``config.data`` into ``config.rl.out``; returns the summary."""
     config.check()
-    rl_config = config.rl
-    with RLRun(rl_config, name=config.kind, progress=progress, overwrite=overwrite, command=command) as rl:
+    if config.init:  # the policy is a residual over an imitation run (demo.rl.residual)
+        residual = ResidualConfig(rl=config.rl, init=config.init, scale=config.scale)
+        run: RLRun = ResidualRun(residual, name=config.kind, progress=progress, overwrite=overwrite, command=command)
+    else:
+        run = RLRun(config.rl, name=config.kind, progress=progress, overwrite=overwrite, command=command)
+    rl_config = run.config
+    with run as rl:
         expert = rl.demonstrations(config.data, config.demos)
         keys = config.disc_obs_keys or TASKS[rl_config.task].relative_goal_keys
         spec = ObsSpec.from_features(rl.pool.envs[0].features, keys, where="--disc-obs-keys") if keys else rl.pool.obs_spec
         rl.record["adversarial"] = {**config.to_json(), "disc_obs": spec.to_json()}
         rl.open()
         adversary = Adversary(config, rl, expert, spec)
-        bc_loss = pretrain_bc(rl, expert, config.bc_steps, rl_config.seed) if config.init_bc else None
-        if config.init_bc:
-            rl.evaluate()
+        bc_loss = pretrain_bc(rl, expert, config.bc_steps, rl_config.seed) if config.init_bc and not config.init else None
+        if config.init_bc or config.init:
+            rl.evaluate()  # the starting line
 
         while rl.iteration < rl_config.iterations:
             rl.iterate(adversary.reward, adversary.train)

@@ -105,6 +105,8 @@ class AdversarialConfig:
     bc_steps: int = 2000
     gail_reward: str = "logit"  # gail: softplus (-log(1 - D), Ho & Ermon) | logit (log D - log(1 - D), DAC)
     airl_reward: str = "logit"  # airl: logit (f - log pi, the paper's) | f (without the entropy term)
+    init: str = ""  # gail: start from this imitation run, the policy a residual over it (demo.rl.residual)
+    scale: float = 0.1  # ... the residual's bound (ResidualConfig.scale)
 
     def check(self) -> None:
         self.rl.check()
@@ -116,6 +118,9 @@ class AdversarialConfig:
             raise DemoError("--airl-reward", f"AIRL's reward is {' or '.join(AIRL_REWARDS)}, not {self.airl_reward!r}")
         if self.inputs not in GAIL_INPUT_NAMES:
             raise DemoError("--inputs", f"GAIL's discriminator reads sa (s, a), ss (s, s') or s (s'), not {self.inputs!r}")
+        if self.init and (self.kind != "gail" or self.inputs == "sa"):
+            raise DemoError("--init", "starts GAIL with a state-only discriminator (--inputs s or ss) from an imitation "
+                                      "run: a residual's actions are corrections, not the demonstrations' actions")
         if self.disc_epochs < 1 or self.disc_batch < 1 or self.grad_penalty < 0 or self.bc_steps < 0:
             raise DemoError("--disc-epochs", "disc_epochs and disc_batch must be >= 1, grad_penalty and bc_steps >= 0")
 

@@ -583,8 +583,8 @@ def episode_sums(values: np.ndarray, dones: np.ndarray) -> np.ndarray:
 
 
 def plot_rl(metrics: dict[str, Any], path: str | Path, title: str = "") -> Path:
-    """Episode return of the dense task reward, evaluation success (95% interval) and, for a learned reward,
-    its correlation with the dense one, against environment steps."""
+    """Episode return of the dense task reward, evaluation success (95% interval; a fine-tuning run's starting
+    line) and, for a learned reward, its correlation with the dense one, against environment steps."""
 
     plt = pyplot()
     its = [e for e in metrics.get("iterations", []) if e.get("task_return") is not None]
@@ -610,6 +610,9 @@ def plot_rl(metrics: dict[str, Any], path: str | Path, title: str = "") -> Path:
         x = [e["step"] for e in evals]
         ax2.fill_between(x, [e["ci95"][0] for e in evals], [e["ci95"][1] for e in evals], alpha=0.2)
         ax2.plot(x, [e["success_rate"] for e in evals], "o-", lw=1.4)
+    if metrics.get("start"):  # a fine-tuning run's starting line: its base policy's success
+        ax2.axhline(metrics["start"]["success_rate"], ls="--", lw=1.0, color="grey", label="start (the base policy)")
+        ax2.legend(fontsize=8, loc="lower right")
     ax2.set_ylim(-0.02, 1.02)
     ax2.set_xlabel("environment steps")
     ax2.set_ylabel(f"eval success ({evals[-1]['episodes'] if evals else '?'} episodes)")

@@ -75,14 +75,15 @@ class ResidualController(Controller):
 class ResidualRun(RLRun):
     """PPO on a residual over the frozen imitation policy ``config.init`` (module docstring)."""
 
-    def __init__(self, config: ResidualConfig, *, progress: Progress | None = None, overwrite: bool = False,
-                 command: str | None = None):
+    def __init__(self, config: ResidualConfig, *, name: str = "residual", progress: Progress | None = None,
+                 overwrite: bool = False, command: str | None = None):
+        """``name``: the algorithm recorded (``residual``; ``gail`` when GAIL's reward trains it)."""
         config.check()
         self.base = ckpt.load_bundle(config.init)
         self.scale = config.scale
         rl = _rl_config(config, self.base)
         robot = pick_robot(self.base, None)
-        super().__init__(rl, name="residual", progress=progress, overwrite=overwrite, command=command, robot=robot)
+        super().__init__(rl, name=name, progress=progress, overwrite=overwrite, command=command, robot=robot)
         self.record.update({
             "policy": self.base.run["policy"],  # the base policy, unchanged: demo eval rebuilds it from here
             "residual": self.residual().to_json(),

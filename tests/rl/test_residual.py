@@ -22,19 +22,20 @@ pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 @pytest.fixture(scope="module")
-def base_and_residual(reach_demos, tiny_bc_config, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """A chunked, ensembled BC run on reach and a residual trained on it for two short PPO iterations."""
+def base_and_residual(reach_demos, tiny_bc_config, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
+    """A chunked, ensembled BC run on reach, a residual trained on it for two short PPO iterations, and the
+    demonstrations."""
     root = tmp_path_factory.mktemp("residual")
     base = root / "bc"
     algorithms.train("bc", tiny_bc_config(reach_demos(8), base, chunk=4, ensemble=0.01))
     out = root / "residual"
     train(ResidualConfig(rl=PPOConfig(out=str(out), total_steps=200, num_envs=2, num_steps=50, epochs=1, minibatches=2,
                                       hidden=(16,), eval_episodes=2, eval_every=1), init=str(base), scale=0.1))
-    return base, out
+    return base, out, reach_demos(8)
 
 
-def test_the_run_keeps_the_base_and_records_the_starting_line(base_and_residual: tuple[Path, Path]) -> None:
-    base, out = base_and_residual
+def test_the_run_keeps_the_base_and_records_the_starting_line(base_and_residual: tuple[Path, Path, Path]) -> None:
+    base, out, _ = base_and_residual
     run, base_run = json.loads((out / "run.json").read_text()), json.loads((base / "run.json").read_text())
     assert run["algo"] == "residual" and run["policy"] == base_run["policy"]
     assert run["init"]["run"] == str(base.resolve()) and run["task"]["name"] == "reach"
@@ -66,8 +67,8 @@ def _frames(steps: int = 30) -> list[dict[str, np.ndarray]]:
     return out
 
 
-def test_evaluation_executes_base_plus_a_bounded_correction(base_and_residual: tuple[Path, Path]) -> None:
-    base_dir, out = base_and_residual
+def test_evaluation_executes_base_plus_a_bounded_correction(base_and_residual: tuple[Path, Path, Path]) -> None:
+    base_dir, out, _ = base_and_residual
     base, fine = ckpt.load_bundle(base_dir), ckpt.load_bundle(out)
     assert base.residual is None and fine.residual is not None
     frames = _frames()
@@ -116,6 +117,23 @@ def test_bad_options_fail_in_one_line(base_and_residual: tuple[Path, Path], one_
     out = str(tmp_path / "r")
     one_line_error(["irl", "train", "--algo", "residual", "--out", out], "--init")
     one_line_error(["irl", "train", "--algo", "ppo", "--init", base, "--out", out], "--init", "ppo")
+    one_line_error(["irl", "train", str(base_and_residual[2]), "--algo", "gail", "--init", base, "--inputs", "sa",
+                    "--out", out], "--init", "state-only")
     one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--task", "pick", "--out", out], "base run")
     one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--scale", "2", "--out", out], "--scale")
     one_line_error(["irl", "train", "--algo", "residual", "--init", str(tmp_path / "nothing"), "--out", out], "nothing")
+
+
+def test_gail_starts_from_an_imitation_run(base_and_residual: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    from demo.rl.adversarial import train as train_adversarial
+    from demo.rl.config import AdversarialConfig
+
+    base, _, demos = base_and_residual
+    out = tmp_path / "gail"
+    summary = train_adversarial(AdversarialConfig(
+        rl=PPOConfig(out=str(out), total_steps=100, num_envs=2, num_steps=50, epochs=1, minibatches=2, hidden=(16,),
+                     eval_episodes=2), data=str(demos), kind="gail", init=str(base)))
+    run = json.loads((out / "run.json").read_text())
+    assert run["algo"] == "gail" and run["residual"]["scale"] == 0.1 and run["adversarial"]["init"] == str(base)
+    assert summary["start_success_rate"] is not None and (out / "reward.safetensors").is_file()
+    assert ckpt.load_bundle(out).residual is not None
