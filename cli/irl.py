@@ -34,15 +34,16 @@ FIELD_OPTIONS = {
                           "scale": "--scale",
                           "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
                           "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
-    "ResidualConfig": {"init": "--init", "scale": "--scale"},
+    "ResidualConfig": {"init": "--init", "scale": "--scale", "data": "STORE", "demos": "--demos", "bc_coef": "--bc-coef"},
     "LinearIRLConfig": {"data": "STORE", "method": "--algo", "demos": "--demos", "inner_iterations": "--inner-iterations"},
 }
 
 
 @irl_app.command("train")
 def train(
-    store: str = typer.Argument(None, metavar="STORE", help="Demonstrations (gail, airl, maxent, apprenticeship): a store "
-                                "of the task in the policy's action representation.", show_default=False),
+    store: str = typer.Argument(None, metavar="STORE", help="Demonstrations (gail, airl, maxent, apprenticeship; residual: "
+                                "kept in a BC term): a store of the task in the policy's action representation.",
+                                show_default=False),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (demo eval runs it).",
                              show_default=False),
     algo: str = typer.Option("ppo", help=f"Algorithm: {', '.join(ALGOS)}."),
@@ -52,6 +53,8 @@ def train(
     init: str = typer.Option(None, "--init", metavar="RUN", help="residual, gail: the imitation run to correct (its task, "
                              "options, robot and actions; it stays frozen): the policy is a residual over it.",
                              show_default=False),
+    bc_coef: float = typer.Option(_R.bc_coef, help="residual with a STORE: the weight of the BC term that keeps the "
+                                  "demonstrations during RL."),
     scale: float = typer.Option(_R.scale, help="residual, gail --init: the largest correction, as a fraction of each "
                                 "action entry's half-range in the base run's data."),
     robot: str = robot_option(),
@@ -87,9 +90,10 @@ def train(
 ) -> None:
     """Train a policy by RL in the simulator; every run directory evaluates with demo eval RUN."""
     algorithms.algorithm(algo, algorithms.IRL)  # an unknown --algo fails here, naming the choices
-    if (algo in FROM_SIMULATOR) != (store is None):
-        raise DemoError("STORE", f"{algo} learns from the reward, not from a store" if algo in FROM_SIMULATOR else
-                        f"{algo} learns from demonstrations: name a STORE")
+    if algo == "ppo" and store is not None:
+        raise DemoError("STORE", "ppo learns from the reward, not from a store")
+    if algo not in FROM_SIMULATOR and store is None:
+        raise DemoError("STORE", f"{algo} learns from demonstrations: name a STORE")
     if algo not in FROM_SIMULATOR and reward != "task":
         raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to {' and '.join(FROM_SIMULATOR)}")
     if algo == "residual" and init is None:
@@ -99,7 +103,7 @@ def train(
     if algo == "residual" and (task or robot):
         raise DemoError("--task", "a residual runs on its base run's task and robot")
     defaults = _R.rl if algo == "residual" else _P
-    rl = PPOConfig(task=task or (_store_task(store) if store else "reach"), robot=robot, out=str(out), reward=reward,
+    rl = PPOConfig(task=task or (_store_task(store) if store and algo != "residual" else "reach"), robot=robot, out=str(out), reward=reward,
                    action=action, obs_keys=_keys(obs_keys), seed=seed,
                    total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
                    num_steps=defaults.num_steps if rollout is None else rollout, lr=lr, ent_coef=ent_coef,
@@ -107,7 +111,7 @@ def train(
     if algo == "ppo":
         config: PPOConfig | AdversarialConfig | LinearIRLConfig | ResidualConfig = rl
     elif algo == "residual":
-        config = ResidualConfig(rl=rl, init=init, scale=scale)
+        config = ResidualConfig(rl=rl, init=init, scale=scale, data=store or "", demos=demos, bc_coef=bc_coef)
     elif algo in ("gail", "airl"):
         config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
                                    init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,

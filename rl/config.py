@@ -138,16 +138,22 @@ class ResidualConfig:
     rl: PPOConfig = field(default_factory=lambda: PPOConfig(num_steps=160, init_log_std=-1.0))
     init: str = ""  # the imitation run directory the residual corrects
     scale: float = 0.1  # the largest correction: this fraction of each action entry's half-range in the base's data
+    data: str = ""  # demonstrations kept in a BC term during RL (a store of the base's task and actions)
+    demos: int | None = None  # the first N successful ones (default all)
+    bc_coef: float = 1.0  # the BC term's weight beside PPO's loss (with data)
 
     def check(self) -> None:
         self.rl.check()
         if not self.init:
             raise DemoError("--init", "name the imitation run the residual corrects")
+        if self.bc_coef < 0:
+            raise DemoError("--bc-coef", f"must be >= 0, got {self.bc_coef}")
         if not 0 < self.scale <= 1:
             raise DemoError("--scale", f"the residual's bound is a fraction in (0, 1] of each action's range, got {self.scale}")
 
     def to_json(self) -> dict[str, Any]:
-        return {"rl": self.rl.to_json(), "init": self.init, "scale": self.scale}
+        return {"rl": self.rl.to_json(), "init": self.init, "scale": self.scale, "data": self.data, "demos": self.demos,
+                "bc_coef": self.bc_coef}
 
 
 @dataclass

@@ -61,6 +61,29 @@ class ExpertData:
                 "expert_labels": self.frame_count, "seeds": self.seeds}
 
 
+def demonstrations(store: EpisodeStore, path: str, task: str, obs_spec: ObsSpec, action: ActionSpec,
+                   demos: int | None = None) -> np.ndarray:
+    """The indices of the first ``demos`` (default all) successful episodes of ``store``, refusing a store of
+    another task, action representation or observations in one line."""
+    meta = store.meta
+    have = (meta.task or {}).get("name")
+    if have != task:
+        raise DemoError(path, f"holds {have!r} demonstrations, not {task!r}")
+    if meta.action.name != action.name or meta.action.dim != action.dim:
+        hint = f" (demo convert {path} --to {action.name} --out ...)" if action.name != "joint_pos" else ""
+        raise DemoError(path, f"holds {meta.action.name} actions ({meta.action.dim}); the policy acts in "
+                              f"{action.name} ({action.dim}){hint}")
+    obs_spec.check_against(meta.features, str(path))
+    chosen = np.flatnonzero(store.column("success").astype(bool))
+    if demos is not None:
+        if demos < 1 or demos > len(chosen):
+            raise DemoError("--demos", f"{path} has {len(chosen)} successful episodes; asked for {demos}")
+        chosen = chosen[:demos]
+    if len(chosen) == 0:
+        raise DemoError(path, "has no successful episodes to learn from")
+    return chosen
+
+
 def load_expert(path: str, task: str, options: dict[str, Any], obs_spec: ObsSpec, action: ActionSpec,
                 action_norm: MinMaxNormalizer, relative: RelativeActions | None, reward: TaskReward,
                 demos: int | None = None, horizon: int | None = None) -> ExpertData:
@@ -68,21 +91,7 @@ def load_expert(path: str, task: str, options: dict[str, Any], obs_spec: ObsSpec
     ``horizon``: the RL episodes' length, which weights each episode's last transition (default: no padding)."""
     with EpisodeStore.open(path) as store:
         meta = store.meta
-        have = (meta.task or {}).get("name")
-        if have != task:
-            raise DemoError(path, f"holds {have!r} demonstrations, not {task!r}")
-        if meta.action.name != action.name or meta.action.dim != action.dim:
-            hint = f" (demo convert {path} --to {action.name} --out ...)" if action.name != "joint_pos" else ""
-            raise DemoError(path, f"holds {meta.action.name} actions ({meta.action.dim}); the policy acts in "
-                                  f"{action.name} ({action.dim}){hint}")
-        obs_spec.check_against(meta.features, str(path))
-        chosen = np.flatnonzero(store.column("success").astype(bool))
-        if demos is not None:
-            if demos < 1 or demos > len(chosen):
-                raise DemoError("--demos", f"{path} has {len(chosen)} successful episodes; asked for {demos}")
-            chosen = chosen[:demos]
-        if len(chosen) == 0:
-            raise DemoError(path, "has no successful episodes to learn from")
+        chosen = demonstrations(store, path, task, obs_spec, action, demos)
         keys = [*obs_spec.source_keys, *(k for k in _reward_keys(meta.features) if k not in obs_spec.source_keys)]
         if relative is not None and relative.obs_key not in keys:
             keys.append(relative.obs_key)

@@ -365,8 +365,10 @@ def ppo_losses(policy: GaussianPolicy, critic: nn.Module, obs: torch.Tensor, act
 
 
 def ppo_update(agent: Agent, obs_n: np.ndarray, actions: np.ndarray, logprobs: np.ndarray, advantages: np.ndarray,
-               returns: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
-    """``epochs`` passes of minibatch steps on one iteration's flattened transitions; the last stats."""
+               returns: np.ndarray, rng: np.random.Generator,
+               auxiliary: Callable[[], torch.Tensor] | None = None) -> dict[str, float]:
+    """``epochs`` passes of minibatch steps on one iteration's flattened transitions; the last stats.
+    ``auxiliary``: a loss added at every minibatch step (a residual's BC term on the demonstrations)."""
     c = agent.config
     t = {k: torch.from_numpy(np.asarray(v, np.float32).reshape(-1, *v.shape[2:]))
          for k, v in (("obs", obs_n), ("actions", actions), ("logprobs", logprobs), ("adv", advantages),
@@ -382,6 +384,9 @@ def ppo_update(agent: Agent, obs_n: np.ndarray, actions: np.ndarray, logprobs: n
             losses = ppo_losses(agent.policy, agent.critic, t["obs"][idx], t["actions"][idx], t["logprobs"][idx],
                                 t["adv"][idx], t["ret"][idx], c.clip)
             loss = losses["policy"] + c.vf_coef * losses["value"] - c.ent_coef * losses["entropy"]
+            if auxiliary is not None:
+                losses["auxiliary"] = auxiliary()
+                loss = loss + losses["auxiliary"]
             agent.optimizer.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(params, c.max_grad_norm)
@@ -442,6 +447,10 @@ class RLRun(Run):
         """What the agent's actions mean (PPO's own: the whole command)."""
         return Controller(self.pool, self.action_norm)
 
+    def auxiliary_loss(self) -> Callable[[], torch.Tensor] | None:
+        """A loss added to PPO's at every minibatch step (none here; a residual's BC term)."""
+        return None
+
     def close(self) -> None:
         try:
             self.pool.close()
@@ -497,7 +506,7 @@ class RLRun(Run):
         obs_n, next_n = roll.normalized(roll.obs), roll.normalized(roll.next_obs)
         adv, ret = gae(scaled, agent.values(obs_n), agent.values(next_n), roll.terminated, roll.dones,
                        c.gamma, c.gae_lambda)
-        stats = ppo_update(agent, obs_n, roll.actions, roll.logprobs, adv, ret, self.rng)
+        stats = ppo_update(agent, obs_n, roll.actions, roll.logprobs, adv, ret, self.rng, self.auxiliary_loss())
         agent.obs_rms.update(roll.obs.reshape(-1, roll.obs.shape[-1]))
         agent.obs_norm = agent.obs_rms.normalizer()
         entry = self._log(it, roll, rewards, stats, extra, collect_s, time.perf_counter() - t0)

@@ -14,6 +14,12 @@ action ``b`` for the frame is merged from its chunks; the residual (PPO's Gaussi
 standardised by running statistics; the executed command is ``b + bound * clip(a, -1, 1)``, its binary
 gripper rounded as the base's execution rounds it. Nothing of the base is trained.
 
+**Demonstrations in RL** (``STORE``, DAPG's and RLPD's point: keep what the demonstrations say while RL
+explores): every PPO minibatch step adds ``bc_coef`` times the squared error between the residual's mean
+and the correction that would turn the base's action at a demonstrated state into the demonstrator's
+(the base policy replayed over each demonstration's frames, chunks merged as in a rollout; the target
+clipped to the bound), on as many demonstrated states as the minibatch has transitions.
+
 **Reward**: the task's dense reward (:mod:`demo.rl.rewards`: pick's reach, lift and success terms), or
 with ``--reward RUN`` a reward an IRL run learned, as PPO takes them. The task, its options and the robot
 are the base run's. Training episodes come from the RL seed stream, disjoint from the demonstrations
@@ -30,6 +36,7 @@ The run directory evaluates with ``demo eval``: its ``run.json`` holds the base'
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import dataclasses
 from pathlib import Path
 from typing import Any
@@ -40,11 +47,14 @@ import torch
 from demo.errors import DemoError
 from demo.evaluation.evaluate import pick_robot
 from demo.policies import checkpoint as ckpt
-from demo.policies.normalizer import MinMaxNormalizer
+from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
+from demo.policies.observation import ObsSpec
 from demo.policies.residual import Residual, residual_bound
 from demo.progress import Progress
 from demo.rl.config import ACTIONS, ResidualConfig
+from demo.rl.expert_data import demonstrations
 from demo.rl.ppo import Controller, EnvPool, RLRun, learned_reward
+from demo.store import EpisodeStore
 
 
 class ResidualController(Controller):
@@ -92,6 +102,15 @@ class ResidualRun(RLRun):
             "train": config.to_json(),
         })
         self.metrics["start"] = None
+        self.bc_coef = config.bc_coef
+        self.demo_inputs: np.ndarray | None = None  # [M, D] the residual's raw inputs at demonstrated states
+        self.demo_targets: np.ndarray | None = None  # [M, A] the corrections there, normalised to [-1, 1]
+        if config.data:
+            self.demo_inputs, self.demo_targets, episodes = demonstration_targets(
+                config.data, config.demos, self.base, self.pool.obs_spec, self.controller.bound)
+            self.record["demonstrations"] = {"path": str(Path(config.data).resolve()), "episodes": episodes,
+                                             "states": int(len(self.demo_inputs)), "bc_coef": config.bc_coef}
+            self.bc_rng = np.random.default_rng([config.rl.seed, 0xBC])
 
     def make_controller(self) -> ResidualController:
         return ResidualController(self.pool, self.base, residual_bound(self.base.action_norm, self.scale))
@@ -109,6 +128,21 @@ class ResidualRun(RLRun):
     def extra_tensors(self) -> dict[str, torch.Tensor]:
         return self.residual().tensors()
 
+    def auxiliary_loss(self) -> Callable[[], torch.Tensor] | None:
+        """The BC term on the demonstrations (module docstring), with this iteration's input statistics."""
+        if self.demo_inputs is None or self.bc_coef == 0:
+            return None
+        agent, c = self.agent, self.config
+        inputs = torch.from_numpy(np.clip(agent.obs_norm.normalize(self.demo_inputs), -OBS_CLIP, OBS_CLIP))
+        targets = torch.from_numpy(self.demo_targets)
+        size = c.batch // c.minibatches
+
+        def bc_term() -> torch.Tensor:
+            idx = torch.from_numpy(self.bc_rng.integers(len(inputs), size=size))
+            return self.bc_coef * ((agent.policy.mean(inputs[idx]) - targets[idx]) ** 2).mean()
+
+        return bc_term
+
     def evaluate(self) -> dict[str, Any] | None:
         entry = super().evaluate()
         if entry is not None and self.metrics["start"] is None:
@@ -120,6 +154,29 @@ class ResidualRun(RLRun):
         start = self.metrics["start"] or {}
         return {**super().final_metrics(), "start_success_rate": start.get("success_rate"),
                 "min_success_rate": min(evals) if evals else None}
+
+
+def demonstration_targets(path: str, demos: int | None, base: ckpt.PolicyBundle, obs_spec: ObsSpec,
+                          bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The residual's raw inputs ``[M, D]`` at every state of the first ``demos`` successful demonstrations,
+    the corrections ``[M, A]`` (normalised by ``bound``, clipped to [-1, 1]) from the base policy's action
+    there (replayed over each episode's frames in order) to the demonstrated one, and the episode count."""
+    task = str(base.task.get("name"))
+    keys = list(dict.fromkeys([*base.obs_spec.source_keys, *obs_spec.source_keys,
+                               *([base.relative.obs_key] if base.relative is not None else [])]))
+    inputs, targets = [], []
+    actor = base.actor()
+    with EpisodeStore.open(path) as store:
+        chosen = demonstrations(store, path, task, base.obs_spec, base.action, demos)
+        for j, index in enumerate(chosen):
+            data = store.read_episode(int(index), [*keys, "action"])
+            actor.reset(j)
+            for t, action in enumerate(np.asarray(data["action"], np.float32)):
+                frame = {k: data[k][t] for k in keys}
+                b = actor.base_action(frame)
+                inputs.append(np.concatenate([obs_spec.vector(frame), b]))
+                targets.append(np.clip((action - b) / np.maximum(bound, 1e-9), -1.0, 1.0))
+    return np.asarray(inputs, np.float32), np.asarray(targets, np.float32), len(chosen)
 
 
 def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> Any:

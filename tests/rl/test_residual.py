@@ -15,6 +15,7 @@ from demo import algorithms
 from demo.errors import DemoError
 from demo.gym.env import DemoEnv
 from demo.policies import checkpoint as ckpt
+from demo.policies.observation import ObsSpec
 from demo.rl.config import PPOConfig, ResidualConfig
 from demo.rl.residual import train
 
@@ -137,3 +138,32 @@ def test_gail_starts_from_an_imitation_run(base_and_residual: tuple[Path, Path, 
     assert run["algo"] == "gail" and run["residual"]["scale"] == 0.1 and run["adversarial"]["init"] == str(base)
     assert summary["start_success_rate"] is not None and (out / "reward.safetensors").is_file()
     assert ckpt.load_bundle(out).residual is not None
+
+
+def test_the_demonstrations_stay_in_a_bc_term(base_and_residual: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    from demo.rl.residual import demonstration_targets
+
+    base_dir, _, demos = base_and_residual
+    base = ckpt.load_bundle(base_dir)
+    env = DemoEnv("reach", store_layout=True)
+    spec = ObsSpec.from_features(env.features, None, where="reach")
+    env.close()
+    bound = np.full(base.action.dim, 0.05, np.float32)
+    inputs, targets, episodes = demonstration_targets(str(demos), 2, base, spec, bound)
+    assert episodes == 2 and inputs.shape == (len(targets), spec.dim + base.action.dim)
+    assert np.abs(targets).max() <= 1.0 and (np.abs(targets) < 1.0).any()
+    # where a target is not clipped, base + bound * target is the demonstrated action
+    from demo.store import EpisodeStore
+
+    with EpisodeStore.open(demos) as store:
+        first = np.asarray(store.read_episode(0, ["action"])["action"], np.float32)
+    b = inputs[: len(first), spec.dim:]
+    free = np.abs(targets[: len(first)]) < 1.0
+    np.testing.assert_allclose((b + bound * targets[: len(first)])[free], first[free], atol=1e-5)
+
+    out = tmp_path / "bc_term"
+    train(ResidualConfig(rl=PPOConfig(out=str(out), total_steps=100, num_envs=2, num_steps=50, epochs=1, minibatches=2,
+                                      hidden=(16,), eval_episodes=1), init=str(base_dir), data=str(demos), demos=3))
+    run, metrics = json.loads((out / "run.json").read_text()), json.loads((out / "metrics.json").read_text())
+    assert run["demonstrations"]["episodes"] == 3 and run["demonstrations"]["bc_coef"] == 1.0
+    assert all(e["loss_auxiliary"] > 0 for e in metrics["iterations"])
