@@ -67,7 +67,7 @@ from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
 from demo.policies.gaussian import GaussianConfig, GaussianPolicy, mlp
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
-from demo.policies.observation import ObsSpec
+from demo.policies.observation import ObsSpec, image_keys
 from demo.policies.policy import PolicySpec
 from demo.policies.relative import RelativeActions
 from demo.progress import Progress
@@ -139,20 +139,25 @@ class EnvPool:
     """``n`` task environments (:class:`demo.gym.env.DemoEnv`) stepped in turn, each reset as its
     episode ends, from the RL seed stream (module docstring)."""
 
-    def __init__(self, config: PPOConfig, n: int, robot: Any = None):
-        """``robot``: a ``RobotConfig`` in place of ``config.robot`` (a residual run's, from its base run)."""
+    def __init__(self, config: PPOConfig, n: int, robot: Any = None, cameras: Sequence[Any] = ()):
+        """``robot``: a ``RobotConfig`` in place of ``config.robot``; ``cameras``: rendered into every frame (a
+        residual run's, for its base run's pixel policy; the agent itself reads state)."""
         self.config = config
         self.envs: list[DemoEnv] = []
         try:
             for _ in range(n):
-                self.envs.append(DemoEnv(config.task, robot=robot or config.robot, action=config.action, hold_success_s=None,
+                self.envs.append(DemoEnv(config.task, robot=robot or config.robot, cameras=list(cameras),
+                                         action=config.action, hold_success_s=None,
                                          store_layout=True,  # the store's names and shapes: the observation spec and rewards read them
                                          **config.task_options))
         except BaseException:
             self.close()
             raise
         first = self.envs[0]
-        self.obs_spec = ObsSpec.from_features(first.features, config.obs_keys or None, where=f"{config.task} environment")
+        # the state keys by default, also where the frames carry the cameras a residual's base reads
+        state = {k: v for k, v in first.features.items() if k not in image_keys(first.features)}
+        self.obs_spec = ObsSpec.from_features(first.features if config.obs_keys else state, config.obs_keys or None,
+                                              where=f"{config.task} environment")
         if self.obs_spec.images:
             raise DemoError("--obs-keys", "RL here reads state observations only, not camera images")
         self.action_spec: ActionSpec = first.action_spec
@@ -412,13 +417,13 @@ class RLRun(Run):
     EVAL_LABEL = " (eval)"  # the progress field shows the training rollouts' success between evaluations
 
     def __init__(self, config: PPOConfig, *, name: str = "ppo", progress: Progress | None = None,
-                 overwrite: bool = False, command: str | None = None, robot: Any = None):
+                 overwrite: bool = False, command: str | None = None, robot: Any = None, cameras: Sequence[Any] = ()):
         config.check()
         super().__init__(config.out, seed=config.seed, threads=config.threads, stage=f"train {name}",
                          title=f"{name} on {config.task}", total_steps=config.iterations * config.batch,
                          monitor_episodes=config.eval_episodes, progress=progress, overwrite=overwrite, command=command)
         self.config, self.name = config, name
-        self.pool = EnvPool(config, config.num_envs, robot)
+        self.pool = EnvPool(config, config.num_envs, robot, cameras)
         self.reward = task_reward(config.task, "--task")
         self.action_norm = action_bounds(config, self.pool.n_arm)
         self.controller = self.make_controller()

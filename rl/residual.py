@@ -20,6 +20,10 @@ and the correction that would turn the base's action at a demonstrated state int
 (the base policy replayed over each demonstration's frames, chunks merged as in a rollout; the target
 clipped to the bound), on as many demonstrated states as the minibatch has transitions.
 
+**A pixel policy as the base**: the environments render the cameras it reads, and the residual still
+reads the simulator's state (the arm's and the objects'): privileged information a real robot would have to
+estimate, as the state-feedback experts have it here.
+
 **Reward**: the task's dense reward (:mod:`demo.rl.rewards`: pick's reach, lift and success terms), or
 with ``--reward RUN`` a reward an IRL run learned, as PPO takes them. The task, its options and the robot
 are the base run's. Training episodes come from the RL seed stream, disjoint from the demonstrations
@@ -93,7 +97,8 @@ class ResidualRun(RLRun):
         self.scale = config.scale
         rl = _rl_config(config, self.base)
         robot = pick_robot(self.base, None)
-        super().__init__(rl, name=name, progress=progress, overwrite=overwrite, command=command, robot=robot)
+        super().__init__(rl, name=name, progress=progress, overwrite=overwrite, command=command, robot=robot,
+                         cameras=self.base.obs_spec.cameras())
         self.record.update({
             "policy": self.base.run["policy"],  # the base policy, unchanged: demo eval rebuilds it from here
             "residual": self.residual().to_json(),
@@ -162,7 +167,7 @@ def demonstration_targets(path: str, demos: int | None, base: ckpt.PolicyBundle,
     the corrections ``[M, A]`` (normalised by ``bound``, clipped to [-1, 1]) from the base policy's action
     there (replayed over each episode's frames in order) to the demonstrated one, and the episode count."""
     task = str(base.task.get("name"))
-    keys = list(dict.fromkeys([*base.obs_spec.source_keys, *obs_spec.source_keys,
+    keys = list(dict.fromkeys([*base.obs_spec.source_keys, *base.obs_spec.images, *obs_spec.source_keys,
                                *([base.relative.obs_key] if base.relative is not None else [])]))
     inputs, targets = [], []
     actor = base.actor()
@@ -185,8 +190,6 @@ def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> Any:
     if action not in ACTIONS:
         raise DemoError(config.init, f"acts in {action!r}; a residual corrects {' or '.join(ACTIONS)} actions "
                                      "(demo convert the data and train the base in one of them)")
-    if base.obs_spec.images:
-        raise DemoError(config.init, "reads camera images; the residual's environments here run state policies only")
     if base.tokenizer is not None:
         raise DemoError(config.init, "follows instructions; a residual over an instruction-conditioned policy is not built")
     task = base.task.get("name")

@@ -92,3 +92,21 @@ def test_pixel_dagger_labels_the_states_the_pixel_policy_visits(store: Path, tmp
         assert agg.num_episodes == 5  # 4 demonstrations + 1 labelled rollout, images included
         images, _ = agg.load(["obs.image_wrist"])
         assert images["obs.image_wrist"].shape[1:] == (24, 32, 3) and images["obs.image_wrist"].any()
+
+
+def test_a_residual_corrects_a_pixel_policy(store: Path, tmp_path: Path) -> None:
+    """Residual RL over a pixel policy: the environments render its cameras, the residual reads state, the
+    demonstrations' BC term replays it over their images, and the run evaluates."""
+    from demo.rl.config import PPOConfig, ResidualConfig
+    from demo.rl.residual import train as train_residual
+
+    train(tiny(store, tmp_path / "base", steps=6))
+    out = tmp_path / "residual"
+    train_residual(ResidualConfig(rl=PPOConfig(out=str(out), total_steps=40, num_envs=2, num_steps=20, epochs=1,
+                                               minibatches=2, hidden=(16,), eval_episodes=1),
+                                  init=str(tmp_path / "base"), data=str(store), demos=2))
+    bundle = ckpt.load_bundle(out)
+    assert bundle.obs_spec.images and bundle.residual is not None and not bundle.residual.obs_spec.images
+    assert json.loads((out / ckpt.RUN_FILE).read_text())["demonstrations"]["episodes"] == 2
+    result = evaluate(EvalConfig(run=str(out), episodes=1, device="cpu"))
+    assert result["episodes"] == 1
