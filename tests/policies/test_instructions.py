@@ -10,6 +10,7 @@ given at evaluation overrides the environment's; bad input fails in one line.
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 from pathlib import Path
 
@@ -158,6 +159,33 @@ def test_instructions_are_lerobots_tasks_both_ways(dots: Path, tmp_path: Path) -
     assert main(["import", str(tmp_path / "lr"), "--out", str(tmp_path / "foreign.zarr")]) == 0
     with EpisodeStore.open(dots / "dots.zarr") as a, EpisodeStore.open(tmp_path / "foreign.zarr") as b:
         assert b.column("instruction").tolist() == a.column("instruction").tolist()
+
+
+# A Python with lerobot 0.4.4 (tests/interop/test_lerobot.py says how to make one); the check skips without it.
+LEROBOT_PYTHON = os.environ.get("DEMO_LEROBOT_PYTHON")
+LEROBOT_TASKS = """
+import json, sys
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+ds = LeRobotDataset(repo_id="local/x", root=sys.argv[1])
+print(json.dumps([[int(ds[i]["episode_index"]), ds[i]["task"]] for i in range(len(ds))]))
+"""
+
+
+@pytest.mark.skipif(not LEROBOT_PYTHON, reason="LeRobot is not installed: set DEMO_LEROBOT_PYTHON to a Python that "
+                    "has lerobot to read the export with LeRobotDataset")
+def test_lerobot_reads_each_frames_instruction_as_its_task(dots: Path, tmp_path: Path) -> None:
+    import subprocess
+
+    assert main(["export", str(dots / "dots.zarr"), "--format", "lerobot", "--out", str(tmp_path / "lr")]) == 0
+    done = subprocess.run([LEROBOT_PYTHON, "-c", LEROBOT_TASKS, str(tmp_path / "lr")], check=True, capture_output=True,
+                          text=True, env={**os.environ, "HF_HUB_OFFLINE": "1"}, timeout=600)
+    frames = json.loads(done.stdout.strip().splitlines()[-1])
+    with EpisodeStore.open(dots / "dots.zarr") as store:
+        told = store.column("instruction").tolist()
+        lengths = store.column("length").tolist()
+    assert len(frames) == sum(lengths)
+    assert all(task == told[episode] for episode, task in frames)
+    assert {task for _, task in frames} == {"go to the blue dot", "go to the red dot"}
 
 
 def test_stores_of_different_tasks_mix_into_one_policy_with_weights(dots: Path, tmp_path: Path,
