@@ -31,7 +31,7 @@ FIELD_OPTIONS = {
                   "num_steps": "--rollout", "lr": "--lr", "ent_coef": "--ent-coef", "eval_every": "--eval-every",
                   "eval_episodes": "--eval-episodes", "threads": "--threads"},
     "AdversarialConfig": {"data": "STORE", "kind": "--algo", "demos": "--demos", "inputs": "--inputs", "init": "--init",
-                          "scale": "--scale",
+                          "scale": "--scale", "bc_coef": "--bc-coef",
                           "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
                           "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
     "ResidualConfig": {"init": "--init", "scale": "--scale", "data": "STORE", "demos": "--demos", "bc_coef": "--bc-coef"},
@@ -53,8 +53,8 @@ def train(
     init: str = typer.Option(None, "--init", metavar="RUN", help="residual, gail: the imitation run to correct (its task, "
                              "options, robot and actions; it stays frozen): the policy is a residual over it.",
                              show_default=False),
-    bc_coef: float = typer.Option(_R.bc_coef, help="residual with a STORE: the weight of the BC term that keeps the "
-                                  "demonstrations during RL."),
+    bc_coef: float = typer.Option(_R.bc_coef, help="residual with a STORE, gail --init: the weight of the BC term that "
+                                  "keeps the demonstrations during RL."),
     scale: float = typer.Option(_R.scale, help="residual, gail --init: the largest correction, as a fraction of each "
                                 "action entry's half-range in the base run's data."),
     robot: str = robot_option(),
@@ -62,10 +62,10 @@ def train(
                                "(through the env's IK) or joint targets relative to the measured joints."),
     obs_keys: str = typer.Option(None, help="Comma-separated obs.* keys.", show_default="state keys without velocities"),
     steps: int = typer.Option(None, help="Environment (control) steps in all.",
-                              show_default=f"{_P.total_steps:,}; residual: {_R.rl.total_steps:,}"),
+                              show_default=f"{_P.total_steps:,}; with --init: {_R.rl.total_steps:,}"),
     envs: int = typer.Option(_P.num_envs, help="Environments stepped in turn."),
     rollout: int = typer.Option(None, help="Control steps per environment per PPO iteration.",
-                                show_default=f"{_P.num_steps}; residual: {_R.rl.num_steps}"),
+                                show_default=f"{_P.num_steps}; with --init: {_R.rl.num_steps}"),
     lr: float = typer.Option(_P.lr, help="Adam learning rate of the policy and critic (annealed to 0)."),
     ent_coef: float = typer.Option(_P.ent_coef, help="Entropy bonus coefficient."),
     seed: int = typer.Option(_P.seed, help="Seed of initialisation, sampling and the training episodes."),
@@ -102,11 +102,12 @@ def train(
         raise DemoError("--init", f"names the imitation run a residual (residual, gail) corrects, not a start for {algo}")
     if algo == "residual" and (task or robot):
         raise DemoError("--task", "a residual runs on its base run's task and robot")
-    defaults = _R.rl if algo == "residual" else _P
+    defaults = _R.rl if init is not None else _P  # a residual (residual, gail --init) has its own
     rl = PPOConfig(task=task or (_store_task(store) if store and algo != "residual" else "reach"), robot=robot, out=str(out), reward=reward,
                    action=action, obs_keys=_keys(obs_keys), seed=seed,
                    total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
-                   num_steps=defaults.num_steps if rollout is None else rollout, lr=lr, ent_coef=ent_coef,
+                   num_steps=defaults.num_steps if rollout is None else rollout, init_log_std=defaults.init_log_std,
+                   lr=lr, ent_coef=ent_coef,
                    eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
     if algo == "ppo":
         config: PPOConfig | AdversarialConfig | LinearIRLConfig | ResidualConfig = rl
@@ -115,7 +116,7 @@ def train(
     elif algo in ("gail", "airl"):
         config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
                                    init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,
-                                   disc_obs_keys=_keys(disc_obs_keys), init=init or "", scale=scale)
+                                   disc_obs_keys=_keys(disc_obs_keys), init=init or "", scale=scale, bc_coef=bc_coef)
     else:
         config = LinearIRLConfig(rl=rl, data=store, method=algo, demos=demos, inner_iterations=inner)
     with bars() as progress:

@@ -305,7 +305,8 @@ def train(config: AdversarialConfig, *, progress: Progress | None = None, overwr
     """GAIL or AIRL on the demonstrations ``config.data`` into ``config.rl.out``; returns the summary."""
     config.check()
     if config.init:  # the policy is a residual over an imitation run (demo.rl.residual)
-        residual = ResidualConfig(rl=config.rl, init=config.init, scale=config.scale)
+        residual = ResidualConfig(rl=config.rl, init=config.init, scale=config.scale, data=config.data,
+                                  demos=config.demos, bc_coef=config.bc_coef)
         run: RLRun = ResidualRun(residual, name=config.kind, progress=progress, overwrite=overwrite, command=command)
     else:
         run = RLRun(config.rl, name=config.kind, progress=progress, overwrite=overwrite, command=command)

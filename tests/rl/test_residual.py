@@ -167,3 +167,13 @@ def test_the_demonstrations_stay_in_a_bc_term(base_and_residual: tuple[Path, Pat
     run, metrics = json.loads((out / "run.json").read_text()), json.loads((out / "metrics.json").read_text())
     assert run["demonstrations"]["episodes"] == 3 and run["demonstrations"]["bc_coef"] == 1.0
     assert all(e["loss_auxiliary"] > 0 for e in metrics["iterations"])
+
+
+def test_same_seed_same_residual(base_and_residual: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    base, _, demos = base_and_residual
+    weights = []
+    for name in ("a", "b"):
+        train(ResidualConfig(rl=PPOConfig(out=str(tmp_path / name), total_steps=100, num_envs=2, num_steps=50, epochs=1,
+                                          minibatches=2, hidden=(16,), eval_episodes=1), init=str(base), data=str(demos)))
+        weights.append((tmp_path / name / ckpt.POLICY_FILE).read_bytes())
+    assert weights[0] == weights[1]
