@@ -40,6 +40,11 @@ def residual_bound(action_norm: MinMaxNormalizer, scale: float) -> np.ndarray:
     return (scale * (action_norm.high - action_norm.low) / 2.0).astype(np.float32)
 
 
+def residual_input(obs_spec: ObsSpec, frame: dict[str, np.ndarray], base: np.ndarray) -> np.ndarray:
+    """A residual's raw input for one frame and the base policy's action for it: ``[state, base]`` (float32)."""
+    return np.concatenate([obs_spec.vector(frame), np.asarray(base, np.float32)]).astype(np.float32)
+
+
 @dataclass
 class Residual:
     """The correction a residual policy adds to a base policy's action (module docstring)."""
@@ -50,17 +55,13 @@ class Residual:
     bound: np.ndarray  # [A] the largest correction per action entry, base policy's action units
     scale: float
 
-    def input(self, frame: dict[str, np.ndarray], base: np.ndarray) -> np.ndarray:
-        """The residual's raw input for one frame and the base action for it: ``[state, base]``."""
-        return np.concatenate([self.obs_spec.vector(frame), np.asarray(base, np.float32)]).astype(np.float32)
-
     def normalized(self, x: np.ndarray) -> np.ndarray:
         return np.clip(self.obs_norm.normalize(x), -OBS_CLIP, OBS_CLIP).astype(np.float32)
 
     def correction(self, frame: dict[str, np.ndarray], base: np.ndarray) -> np.ndarray:
         """``[A]``: the mean correction for this frame (what evaluation executes)."""
         with torch.inference_mode():
-            mean = self.policy.mean(torch.from_numpy(self.normalized(self.input(frame, base))[None]))[0].numpy()
+            mean = self.policy.mean(torch.from_numpy(self.normalized(residual_input(self.obs_spec, frame, base))[None]))[0].numpy()
         return self.bound * np.clip(mean, -1.0, 1.0)
 
     def to_json(self) -> dict[str, Any]:

@@ -53,9 +53,9 @@ from demo.evaluation.evaluate import pick_robot
 from demo.policies import checkpoint as ckpt
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import ObsSpec
-from demo.policies.residual import Residual, residual_bound
+from demo.policies.residual import Residual, residual_bound, residual_input
 from demo.progress import Progress
-from demo.rl.config import ACTIONS, ResidualConfig
+from demo.rl.config import ACTIONS, PPOConfig, ResidualConfig
 from demo.rl.expert_data import demonstrations
 from demo.rl.ppo import Controller, EnvPool, RLRun, learned_reward
 from demo.store import EpisodeStore
@@ -79,7 +79,7 @@ class ResidualController(Controller):
 
     def observe(self, i: int, frame: dict[str, np.ndarray]) -> np.ndarray:
         self.base_actions[i] = self.actors[i].base_action(frame)
-        return np.concatenate([self.pool.obs_spec.vector(frame), self.base_actions[i]])
+        return residual_input(self.pool.obs_spec, frame, self.base_actions[i])
 
     def command(self, actions: np.ndarray, frames: dict[str, np.ndarray]) -> np.ndarray:
         return np.stack([actor.finish(base + self.bound * a)
@@ -179,12 +179,12 @@ def demonstration_targets(path: str, demos: int | None, base: ckpt.PolicyBundle,
             for t, action in enumerate(np.asarray(data["action"], np.float32)):
                 frame = {k: data[k][t] for k in keys}
                 b = actor.base_action(frame)
-                inputs.append(np.concatenate([obs_spec.vector(frame), b]))
+                inputs.append(residual_input(obs_spec, frame, b))
                 targets.append(np.clip((action - b) / np.maximum(bound, 1e-9), -1.0, 1.0))
     return np.asarray(inputs, np.float32), np.asarray(targets, np.float32), len(chosen)
 
 
-def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> Any:
+def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> PPOConfig:
     """PPO's configuration for a residual over ``base``: its task, options and action representation."""
     action = base.action.name
     if action not in ACTIONS:
