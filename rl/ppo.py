@@ -332,8 +332,9 @@ def collect(agent: Agent, pool: EnvPool, controller: Controller, reward: TaskRew
         out["features"].append(reward.features(frames, failed, options))
     pool.obs = obs
     arrays = {k: np.stack(v) for k, v in out.items()}
-    task = arrays["features"] @ np.asarray(reward.weights)
-    return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=stack(before_all), next_frames=stack(after_all))
+    before, after = stack(before_all), stack(after_all)
+    task = arrays["features"] @ np.asarray(reward.weights) + reward.events(before, after)
+    return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=before, next_frames=after)
 
 
 def gae(rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray, terminated: np.ndarray,

@@ -29,6 +29,15 @@ weights that compare directly with these, and any learned reward can be correlat
   [0, ``lift_height``] (10 cm by default), weight +20 (+2 at the full lift);
 - ``success`` [0/1]: the cube at least ``lift_height`` above its rest (the task's success), weight +2.
 
+``stack`` (every cycle of ``repeat`` K, one cube or several): a finished stack that is not the last moves
+the pad on and puts the cubes back in the same control step, so the state after it looks like a new
+start and no function of that state alone can pay for it. Its reward is sparse and reads the transition:
+
+- ``success`` [0/1]: every cube at its level on the pad (2 cm across, 1 cm in height) with the gripper
+  open: the last stack, held (the task's success), weight +1 per step;
+- the **event** ``cycle`` (:attr:`TaskReward.event`): +1 on the step a cycle ends, i.e. the pad's centre
+  moved by more than 1 cm between the states before and after it.
+
 The features are numpy over batches: every function takes observation arrays with a leading batch
 axis (a store's episodes or the observations of several environments). :func:`pearson` measures how
 well a learned reward follows the dense one over the same transitions.
@@ -76,15 +85,36 @@ def _pick(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[st
     return np.stack([reach_err, np.clip(height, 0.0, lift_height), success.astype(np.float64)], axis=-1)
 
 
+def _stack(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[str, Any]) -> np.ndarray:
+    cubes = np.asarray(obs["obs.object_pos"], np.float64)  # [B, N, 3]
+    size = float(options.get("cube_size", 0.04))
+    place = np.asarray(obs["obs.goal_pos"], np.float64)[:, None, :2]
+    levels = (np.arange(cubes.shape[1]) + 0.5) * size
+    at_level = (np.linalg.norm(cubes[..., :2] - place, axis=-1) <= 0.02) & (np.abs(cubes[..., 2] - levels) <= 0.01)
+    open_hand = np.asarray(obs["obs.gripper"], np.float64)[:, 0] < 0.5
+    return (at_level.all(axis=1) & open_hand).astype(np.float64)[:, None]
+
+
+def _pad_moved(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> np.ndarray:
+    """1 where the pad's centre moved by more than 1 cm across a step (a finished stack cycle), else 0."""
+    step = np.asarray(after["obs.goal_pos"], np.float64) - np.asarray(before["obs.goal_pos"], np.float64)
+    return (np.linalg.norm(step, axis=-1) > 0.01).astype(np.float64)
+
+
+Event = Callable[[Mapping[str, np.ndarray], Mapping[str, np.ndarray]], np.ndarray]
+
+
 @dataclass(frozen=True)
 class TaskReward:
-    """A task's dense reward ``weights . features(obs, failed, options)`` (module docstring)."""
+    """A task's dense reward ``weights . features(obs, failed, options)`` (module docstring), plus an
+    ``event`` of the transition where the state after a step cannot say what happened (stack's cycles)."""
 
     task: str
     names: tuple[str, ...]
     units: tuple[str, ...]
     weights: tuple[float, ...]  # per control step, per unit of each feature
     compute: Features
+    event: Event | None = None  # (obs before, obs after) [..] -> reward [..] per step, added to the features' term
 
     def features(self, obs: Mapping[str, np.ndarray], failed: np.ndarray | None = None,
                  options: Mapping[str, Any] | None = None) -> np.ndarray:
@@ -99,15 +129,20 @@ class TaskReward:
         """``[N]`` dense rewards of ``N`` states (per control step)."""
         return self.features(obs, failed, options) @ np.asarray(self.weights)
 
+    def events(self, before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> np.ndarray | float:
+        """The event term over a batch of transitions (0 for a task without one)."""
+        return 0.0 if self.event is None else self.event(before, after)
+
     def to_json(self) -> dict[str, Any]:
         return {"task": self.task, "features": list(self.names), "units": list(self.units),
-                "weights": list(self.weights)}
+                "weights": list(self.weights), **({"event": self.event.__name__.strip("_")} if self.event else {})}
 
 
 TASK_REWARDS: dict[str, TaskReward] = {
     "reach": TaskReward("reach", ("pos_err", "rot_err", "success"), ("m", "rad", "1"), (-10.0, -1.0, 2.0), _reach),
     "avoid": TaskReward("avoid", ("goal_err", "touched", "success"), ("m", "1", "1"), (-10.0, -5.0, 2.0), _avoid),
     "pick": TaskReward("pick", ("reach_err", "lift", "success"), ("m", "m", "1"), (-10.0, 20.0, 2.0), _pick),
+    "stack": TaskReward("stack", ("success",), ("1",), (1.0,), _stack, event=_pad_moved),
 }
 
 

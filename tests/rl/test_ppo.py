@@ -114,6 +114,24 @@ def test_pick_features_follow_the_staged_lift() -> None:
     assert reward(obs, None, {"cube_size": 0.04, "lift_height": 0.10}) == pytest.approx([-1.0, 1.0, 4.0])
 
 
+def test_stack_pays_each_finished_cycle_and_the_last_stack(tmp_path: Path) -> None:
+    """The scripted expert's episodes of stack with two respawned cycles: one cycle event (the pad moves
+    between two frames) and success on the settled last stack, nowhere else."""
+    from demo.collect.scripted import CollectConfig, collect_scripted
+    from demo.store import EpisodeStore
+
+    options = {"blocks": 1, "repeat": 2, "respawn": 1}
+    collect_scripted(CollectConfig(task="stack", episodes=2, seed=0, task_options=options), tmp_path / "s.zarr", workers=0)
+    reward = TASK_REWARDS["stack"]
+    with EpisodeStore.open(tmp_path / "s.zarr") as store:
+        for i in range(2):
+            ep = store.read_episode(i, ["obs.object_pos", "obs.goal_pos", "obs.gripper"])
+            before, after = ({k: v[:-1] for k, v in ep.items()}, {k: v[1:] for k, v in ep.items()})
+            assert reward.events(before, after).sum() == 1  # the first stack's end, not the last's
+            success = reward.features(ep, None, options)[:, 0]
+            assert success[-1] == 1 and success[: len(success) // 2].sum() == 0
+
+
 def test_ppo_run_directory_evaluates(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from demo.cli.main import main
 
