@@ -52,7 +52,7 @@ def train(
                                "or the reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
     init: str = typer.Option(None, "--init", metavar="RUN", help="residual, gail: the imitation run to correct (its task, "
                              "options, robot and actions; it stays frozen): the policy is a residual over it.",
-                             show_default=False),
+                             show_default="none; residual needs one"),
     bc_coef: float = typer.Option(_R.bc_coef, help="residual with a STORE, gail --init: the weight of the BC term that "
                                   "keeps the demonstrations during RL."),
     scale: float = typer.Option(_R.scale, help="residual, gail --init: the largest correction, as a fraction of each "
