@@ -28,6 +28,10 @@ advantages by GAE(gamma, lambda), bootstrapping on time-limit truncation (only a
 e.g. avoid's collision, is terminal); then ``epochs`` passes of minibatch updates of the clipped
 surrogate, a value loss and an entropy bonus, with Adam, the learning rate annealed linearly.
 
+**What an action means** is a :class:`Controller`'s call: here the whole command in the bounds above, from
+the observation vector; a residual run (:mod:`demo.rl.residual`) adds the agent's action to a frozen
+imitation policy's instead, reading that policy's action beside the state.
+
 **Observations** are the vector a BC policy of the same task reads (:class:`ObsSpec` defaults:
 state without velocities, positions relative to the EE), standardised by a running mean and std
 (floored at :data:`MIN_STD`) and clipped to +-:data:`~demo.policies.normalizer.OBS_CLIP`. The
@@ -332,9 +336,9 @@ def collect(agent: Agent, pool: EnvPool, controller: Controller, reward: TaskRew
         out["features"].append(reward.features(frames, failed, options))
     pool.obs = obs
     arrays = {k: np.stack(v) for k, v in out.items()}
-    before, after = stack(before_all), stack(after_all)
-    task = arrays["features"] @ np.asarray(reward.weights) + reward.events(before, after)
-    return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=before, next_frames=after)
+    frames_before, frames_after = stack(before_all), stack(after_all)
+    task = arrays["features"] @ np.asarray(reward.weights) + reward.events(frames_before, frames_after)
+    return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=frames_before, next_frames=frames_after)
 
 
 def gae(rewards: np.ndarray, values: np.ndarray, next_values: np.ndarray, terminated: np.ndarray,
