@@ -9,6 +9,10 @@ piece here is trained from scratch on this machine (nothing is downloaded):
   the run record (``tokenizers`` parses it in Rust: no pickle, nothing executed).
 - :class:`TextEncoder`: token embeddings and learned positions, a small pre-norm transformer encoder,
   and the mean over the instruction's tokens (padding masked): one vector per instruction.
+- A pretrained encoder by path (``--text-opt init=RUN``, :func:`pretrained_text`): the tokenizer and text
+  encoder of an instruction-conditioned run trained before (on other tasks, other data) start a new run,
+  fine-tuned or kept as they are (``freeze=true``); read from that run's files, nothing fetched. Its
+  vocabulary stays: a word it never saw is ``[UNK]``.
 - :class:`InstructedPolicy`: any policy told the instruction's vector, trained end to end on the
   wrapped policy's own loss. BC's MLP on state takes it by FiLM (RT-1's conditioning): every hidden
   layer's activations scaled and shifted by a linear function of it, so that the words can *select*
@@ -106,6 +110,10 @@ class TextConfig:
     # A policy that takes a condition (BC's MLP on state) is told the vector by FiLM in its hidden layers;
     # false: appended to its observation, as every other policy is
     film: bool = True
+    # A pretrained encoder on disk: the run directory of an instruction-conditioned policy, whose tokenizer
+    # and text encoder (its dim, layers and heads too) start this one (:func:`pretrained_text`)
+    init: str = ""
+    freeze: bool = False  # with init: keep the pretrained encoder's weights as they are
 
     def __post_init__(self) -> None:
         if self.dim < 1 or self.layers < 0 or self.heads < 1 or self.dim % self.heads:
@@ -122,7 +130,8 @@ def text_config(options: TextConfig | dict[str, Any] | None) -> TextConfig:
     unknown = sorted(set(options or {}) - set(fields))
     if unknown:
         raise ValueError(f"the text encoder has no option {', '.join(unknown)} (options: {', '.join(fields)})")
-    values = {k: (float(v) if k == "dropout" else _flag(v) if k == "film" else int(v)) for k, v in (options or {}).items()}
+    values = {k: (float(v) if k == "dropout" else _flag(v) if k in ("film", "freeze") else str(v) if k == "init" else int(v))
+              for k, v in (options or {}).items()}
     return TextConfig(**values)
 
 
@@ -196,3 +205,41 @@ class InstructedPolicy(Policy):
 def text_record(policy: Policy) -> dict[str, Any] | None:
     """The text-encoder settings run.json records for an instruction-conditioned policy (else None)."""
     return dataclasses.asdict(policy.text_config) if isinstance(policy, InstructedPolicy) else None
+
+
+SHAPE_FIELDS = ("dim", "layers", "heads")  # what a pretrained encoder fixes of the text configuration
+
+
+@dataclass
+class PretrainedText:
+    """A text encoder trained before, read from a run directory (:func:`pretrained_text`)."""
+
+    tokenizer: InstructionTokenizer
+    config: TextConfig  # its dim, layers and heads
+    weights: dict[str, torch.Tensor]  # the TextEncoder's state dict
+
+
+def pretrained_text(path: str) -> PretrainedText:
+    """The tokenizer, text-encoder shape and weights of the instruction-conditioned run at ``path`` (read-only:
+    run.json and policy.safetensors, never unpickled); a one-line error for anything else."""
+    from demo.errors import DemoError
+    from demo.policies import checkpoint as ckpt  # deferred: the checkpoint module imports this one
+
+    bundle = ckpt.load_bundle(path)
+    policy = bundle.policy
+    if not isinstance(policy, InstructedPolicy) or bundle.tokenizer is None:
+        raise DemoError(path, "is not an instruction-conditioned run: it has no text encoder to start from "
+                              "(--text-opt init=RUN)")
+    weights = {k: v.detach().clone() for k, v in policy.text.state_dict().items()}
+    return PretrainedText(bundle.tokenizer, policy.text_config, weights)
+
+
+def with_pretrained_shape(options: dict[str, Any], pretrained: PretrainedText) -> TextConfig:
+    """The text configuration ``options`` (``--text-opt``) with the pretrained encoder's dim, layers and heads;
+    a ValueError where ``options`` set one of them to something else."""
+    text = text_config(options)
+    differ = [f"{k}={options[k]} (the encoder has {getattr(pretrained.config, k)})" for k in SHAPE_FIELDS
+              if k in options and int(options[k]) != getattr(pretrained.config, k)]
+    if differ:
+        raise ValueError(f"init={text.init} fixes the encoder's shape: {', '.join(differ)}")
+    return dataclasses.replace(text, **{k: getattr(pretrained.config, k) for k in SHAPE_FIELDS})

@@ -40,7 +40,7 @@ from demo.errors import DemoError
 from demo.store import EpisodeStore, WindowSampler
 from demo.store.instructions import episode_instructions
 from demo.training.config import TrainConfig
-from demo.policies.instruction import INSTRUCTION, InstructionTokenizer
+from demo.policies.instruction import INSTRUCTION, InstructionTokenizer, pretrained_text, text_config
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import PolicySpec
@@ -302,14 +302,16 @@ def _instructions(config: TrainConfig, stores: Sequence[EpisodeStore], sources: 
     (None) when the training episodes hold more than one; every training episode must then have one."""
     texts = episode_instructions(stores)
     trained = sorted({texts[i] for i in train_eps})
-    if config.instructions is False or (config.instructions is None and len(set(trained) - {""}) < 2):
+    init = text_config(config.text).init  # a pretrained text encoder turns conditioning on
+    if config.instructions is False or (config.instructions is None and not init and len(set(trained) - {""}) < 2):
         return None
     if "" in trained:
         i = next(int(i) for i in train_eps if not texts[i])
         source = next(s for s in sources if s.first_episode <= i < s.first_episode + s.episodes)
         raise DemoError(source.path, f"episode {i - source.first_episode} has no instruction, and the policy follows "
                                      "instructions: collect with --instruction, or train with --no-instructions")
-    return Instructions.of(InstructionTokenizer.train(trained), texts, ends)
+    tokenizer = pretrained_text(init).tokenizer if init else InstructionTokenizer.train(trained)
+    return Instructions.of(tokenizer, texts, ends)
 
 
 def _join(arrays: list[np.ndarray]) -> np.ndarray:

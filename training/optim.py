@@ -84,7 +84,8 @@ def make_learner(policy: Policy, config: TrainConfig, step: int = 0, phase_steps
     policy.to(device)
     decay, no_decay = [], []
     for p in policy.parameters():
-        (no_decay if p.ndim < 2 else decay).append(p)  # no weight decay on biases and norms
+        if p.requires_grad:  # a frozen part (a pretrained text encoder) is not optimised
+            (no_decay if p.ndim < 2 else decay).append(p)  # no weight decay on biases and norms
     groups = [{"params": decay, "weight_decay": config.weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
     try:
         # The fused CPU kernel is ~10x faster than the default per-tensor loop (1 ms vs 13 ms per step

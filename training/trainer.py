@@ -46,7 +46,7 @@ from demo.errors import DemoError
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
 from demo.policies.device import resolve_device
-from demo.policies.instruction import text_config
+from demo.policies.instruction import pretrained_text, text_config, with_pretrained_shape
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.policy import build_policy, policy_config
 from demo.policies.visuomotor import encoder_config
@@ -104,8 +104,18 @@ class TrainingRun(Run):
         """A freshly initialised policy for ``data`` and its optimiser (``seed``: re-seed torch first)."""
         if seed is not None:
             torch.manual_seed(seed)
+        text: Any = self.config.text
+        pretrained = pretrained_text(text_config(text).init) if data.instructions is not None and text.get("init") else None
+        if pretrained is not None:
+            try:
+                text = with_pretrained_shape(text, pretrained)
+            except ValueError as exc:
+                raise DemoError("--text-opt", str(exc)) from None
         policy = build_policy(self.config.algo, data.spec, policy_config(self.config.algo, self.config.policy),
-                              self.config.encoder, self.config.text)
+                              self.config.encoder, text)
+        if pretrained is not None:  # a text encoder trained before starts this one (--text-opt init=RUN)
+            policy.text.load_state_dict(pretrained.weights)
+            policy.text.requires_grad_(not text.freeze)
         policy.fit_actions(*chunk_action_limits(data))
         return make_learner(policy, self.config, step, phase_steps, self.device)
 

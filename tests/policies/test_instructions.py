@@ -257,3 +257,28 @@ def test_a_tampered_instruction_record_is_refused_in_one_line(dots: Path, tmp_pa
     grown["policy"]["spec"]["vocab"] += 1
     path.write_text(json.dumps(grown))
     one_line_error(["eval", str(tmp_path / "run"), "--episodes", "1"], "run.json", "does not match the policy's spec")
+
+
+def test_a_pretrained_text_encoder_starts_another_run(dots: Path, tmp_path: Path, one_line_error) -> None:
+    """--text-opt init=RUN: the tokenizer and text encoder of an earlier instruction-conditioned run start this
+    one (its shape too), frozen with freeze=true; a run without one, or another shape asked for, is refused."""
+    import torch
+
+    common = ["--steps", "40", "--chunk", "1", "--no-ensemble", "--seed", "0"]
+    first, frozen, tuned = tmp_path / "first", tmp_path / "frozen", tmp_path / "tuned"
+    assert main(["train", str(dots / "dots.zarr"), "--out", str(first), "--text-opt", "dim=32", "--text-opt", "heads=2", *common]) == 0
+    assert main(["train", str(dots / "dots.zarr"), "--out", str(frozen), "--text-opt", f"init={first}", "--text-opt", "freeze=true",
+                 *common, "--seed", "1"]) == 0
+    assert main(["train", str(dots / "dots.zarr"), "--out", str(tuned), "--text-opt", f"init={first}", *common]) == 0
+    a, b, c = load_bundle(first), load_bundle(frozen), load_bundle(tuned)
+    assert b.tokenizer.to_json() == a.tokenizer.to_json() and b.policy.text_config.dim == 32
+    weights = a.policy.text.state_dict()
+    assert all(torch.equal(v, b.policy.text.state_dict()[k]) for k, v in weights.items())  # frozen: unchanged
+    assert not all(torch.equal(v, c.policy.text.state_dict()[k]) for k, v in weights.items())  # fine-tuned: moved
+    assert json.loads((frozen / "run.json").read_text())["policy"]["text"]["init"] == str(first)
+    one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "bad"), "--text-opt",
+                    f"init={first}", "--text-opt", "dim=64", *common], "--text-opt", "dim=64")
+    plain = tmp_path / "plain"
+    assert main(["train", str(dots / "dots.zarr"), "--out", str(plain), "--no-instructions", *common]) == 0
+    one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "bad2"), "--text-opt", f"init={plain}",
+                    *common], str(plain), "not an instruction-conditioned run")
