@@ -22,8 +22,8 @@ irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PP
 app.add_typer(irl_app, name="irl")
 
 ALGOS = algorithms.names(algorithms.IRL)
-_P, _A, _L, _R = PPOConfig(), AdversarialConfig(), LinearIRLConfig(), ResidualConfig()
-FROM_SIMULATOR = ("ppo", "residual")  # the algorithms that learn from the reward alone, without a store  # the defaults live in the library's dataclasses
+_P, _A, _L, _R = PPOConfig(), AdversarialConfig(), LinearIRLConfig(), ResidualConfig()  # the defaults live in the library's dataclasses
+FROM_SIMULATOR = ("ppo", "residual")  # the algorithms that learn from the reward alone, without a store
 # Which option sets which field (tests/rl/test_cli_options.py holds these to the dataclasses and the command).
 FIELD_OPTIONS = {
     "PPOConfig": {"task": "--task", "robot": "--robot", "out": "--out", "reward": "--reward", "action": "--action",
@@ -101,10 +101,10 @@ def train(
     if init is not None and algo not in ("residual", "gail"):
         raise DemoError("--init", f"names the imitation run a residual (residual, gail) corrects, not a start for {algo}")
     if algo == "residual" and (task or robot):
-        raise DemoError("--task", "a residual runs on its base run's task and robot")
+        raise DemoError("--task" if task else "--robot", "a residual runs on its base run's task and robot")
     defaults = _R.rl if init is not None else _P  # a residual (residual, gail --init) has its own
-    rl = PPOConfig(task=task or (_store_task(store) if store and algo != "residual" else "reach"), robot=robot, out=str(out), reward=reward,
-                   action=action, obs_keys=_keys(obs_keys), seed=seed,
+    rl = PPOConfig(task=task or (_store_task(store) if store and algo != "residual" else "reach"), robot=robot,
+                   out=str(out), reward=reward, action=action, obs_keys=_keys(obs_keys), seed=seed,
                    total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
                    num_steps=defaults.num_steps if rollout is None else rollout, init_log_std=defaults.init_log_std,
                    lr=lr, ent_coef=ent_coef,

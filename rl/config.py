@@ -137,7 +137,7 @@ class ResidualConfig:
     representation are the base run's, the PPO settings ``rl``'s."""
 
     # PPO's settings but a narrower initial exploration (std 0.2 of the bound: 54 -> 80% on pick's monitor at
-    # 400,000 steps, against 68% at PPO's 0.37) and pick's horizon per rollout (docs/results.md)
+    # 400,000 steps; PPO's 0.37: 68% at 302,000) and pick's horizon per rollout (docs/results.md)
     rl: PPOConfig = field(default_factory=lambda: PPOConfig(total_steps=400_000, num_steps=160, init_log_std=-1.6))
     init: str = ""  # the imitation run directory the residual corrects
     scale: float = 0.1  # the largest correction: this fraction of each action entry's half-range in the base's data
