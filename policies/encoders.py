@@ -168,9 +168,14 @@ class ColorJitter(nn.Module):
 
 
 class CameraEncoder(nn.Module):
-    """One camera's uint8 images ``[N, H, W, 3]`` -> features ``[N, features]``."""
+    """One camera's uint8 images ``[N, H, W, 3]`` -> features ``[N, features]``.
 
-    def __init__(self, height: int, width: int, config: EncoderConfig):
+    ``cond_dim`` > 0: FiLM (RT-1's conditioning of its image encoder) of the backbone's feature maps by a
+    condition vector (an instruction's): each channel scaled by ``1 + gamma`` and shifted by ``beta``, both
+    linear in the condition and zero at initialisation, before the keypoints are found, so the words can
+    select what the camera attends to."""
+
+    def __init__(self, height: int, width: int, config: EncoderConfig, cond_dim: int = 0):
         super().__init__()
         crop = config.crop_size(height, width)
         self.jitter = ColorJitter(config.color_jitter)
@@ -180,14 +185,22 @@ class CameraEncoder(nn.Module):
             c, h, w = self.backbone(torch.zeros(1, 3, *crop)).shape[1:]
         self.keypoints = SpatialSoftmax(c, h, w, config.keypoints)
         self.out = nn.Sequential(nn.Linear(2 * config.keypoints, config.features), nn.LayerNorm(config.features), nn.ReLU())
+        self.film = nn.Linear(cond_dim, 2 * c) if cond_dim else None
+        if self.film is not None:  # identity at initialisation: the condition's effect is learnt
+            nn.init.zeros_(self.film.weight)
+            nn.init.zeros_(self.film.bias)
 
     def preprocess(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 ``[N, H, W, 3]`` -> the backbone's input: floats in [-1, 1], ``[N, 3, ch, cw]``, cropped."""
         return self.augment(self.jitter(images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)))
 
-    def features(self, x: torch.Tensor) -> torch.Tensor:
-        """:meth:`preprocess`'s output -> ``[N, features]``."""
-        return self.out(self.keypoints(self.backbone(x)))
+    def features(self, x: torch.Tensor, condition: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`preprocess`'s output (and ``[N, cond_dim]`` conditions with FiLM) -> ``[N, features]``."""
+        maps = self.backbone(x)
+        if self.film is not None and condition is not None:
+            gamma, beta = self.film(condition.to(maps.dtype)).chunk(2, dim=-1)
+            maps = maps * (1.0 + gamma[..., None, None]) + beta[..., None, None]
+        return self.out(self.keypoints(maps))
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         return self.features(self.preprocess(images))

@@ -166,7 +166,8 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
 
         text = text_config(text)
         film = cls.takes_condition and not spec.images and text.film
-        return InstructedPolicy(spec, config, text, lambda inner: build_policy(name, inner, config, encoder), film)
+        return InstructedPolicy(spec, config, text, lambda inner: build_policy(name, inner, config, encoder), film,
+                                bool(spec.images) and text.film_images)
     if spec.images:
         from demo.policies.visuomotor import VisuomotorPolicy, encoder_config  # deferred: cycle (visuomotor imports this module)
 

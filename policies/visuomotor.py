@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from demo.policies.encoders import CameraEncoder, EncoderConfig
+from demo.policies.instruction import CONDITION
 from demo.policies.observation import STATE, IMAGE_PREFIX
 from demo.policies.policy import Policy, PolicySpec
 
@@ -43,23 +44,29 @@ class VisuomotorPolicy(Policy):
         self.name = head.name
         self.encoder_config = encoder
         self.keys = [key for key, _, _ in spec.images]
-        self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder) for key, h, w in spec.images})
-        head_spec = dataclasses.replace(spec, obs_dim=spec.obs_dim + len(self.keys) * encoder.features, images=())
+        # spec.cond_dim > 0: the encoders FiLM their feature maps by the observation's CONDITION (an instruction's)
+        self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder, spec.cond_dim)
+                                      for key, h, w in spec.images})
+        head_spec = dataclasses.replace(spec, obs_dim=spec.obs_dim + len(self.keys) * encoder.features, images=(),
+                                        cond_dim=0)
         self.head = head(head_spec, config)
 
     def encode(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        """``{state, camera keys}`` -> ``[B, n_obs, obs_dim + cameras * features]``."""
-        return self.fuse(obs[STATE], self.preprocess(obs))
+        """``{state, camera keys[, condition]}`` -> ``[B, n_obs, obs_dim + cameras * features]``."""
+        return self.fuse(obs[STATE], self.preprocess(obs), obs.get(CONDITION))
 
     def preprocess(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Each camera's uint8 images as its backbone takes them: ``[B * n_obs, 3, ch, cw]`` floats,
         scaled and cropped (randomly in training)."""
         return {key: encoder.preprocess(obs[key].flatten(0, 1)) for key, encoder in zip(self.keys, self.cameras.values())}
 
-    def fuse(self, state: torch.Tensor, crops: dict[str, torch.Tensor]) -> torch.Tensor:
-        """``state [B, n_obs, D]`` and :meth:`preprocess`'s crops -> the wrapped policy's observation."""
+    def fuse(self, state: torch.Tensor, crops: dict[str, torch.Tensor], condition: torch.Tensor | None = None
+             ) -> torch.Tensor:
+        """``state [B, n_obs, D]``, :meth:`preprocess`'s crops (and ``[B, cond_dim]`` conditions, the same for
+        every frame of a sample) -> the wrapped policy's observation."""
         b, t = state.shape[:2]
-        parts = [encoder.features(crops[key]).reshape(b, t, -1).to(state.dtype)
+        per_frame = None if condition is None else condition[:, None].expand(b, t, -1).reshape(b * t, -1)
+        parts = [encoder.features(crops[key], per_frame).reshape(b, t, -1).to(state.dtype)
                  for key, encoder in zip(self.keys, self.cameras.values())]
         return torch.cat([state, *parts], dim=-1)
 

@@ -110,3 +110,35 @@ def test_a_residual_corrects_a_pixel_policy(store: Path, tmp_path: Path) -> None
     assert json.loads((out / ckpt.RUN_FILE).read_text())["demonstrations"]["episodes"] == 2
     result = evaluate(EvalConfig(run=str(out), episodes=1, device="cpu"))
     assert result["episodes"] == 1
+
+
+def test_instructions_film_the_image_encoders_on_request(tmp_path: Path) -> None:
+    """--text-opt film_images=true: coloured cubes from cameras, the instruction FiLMs each camera's feature maps
+    (identity at initialisation, recorded, loaded back); without it the encoders take no condition."""
+    from demo.policies.instruction import CONDITION
+
+    path = tmp_path / "colours.zarr"
+    collect_scripted(CollectConfig(task="pick", episodes=6, seed=0, cameras=CAMERAS, task_options={"colours": 3}),
+                     path, workers=0)
+    train(tiny(path, tmp_path / "film", text={"film_images": True, "dim": 16, "heads": 2}))
+    train(tiny(path, tmp_path / "plain", text={"dim": 16, "heads": 2}))
+    film, plain = ckpt.load_bundle(tmp_path / "film"), ckpt.load_bundle(tmp_path / "plain")
+    assert film.run["policy"]["text"]["film_images"] is True and film.policy.film_images
+    assert all(e.film is not None for e in film.policy.inner.cameras.values())
+    assert all(e.film is None for e in plain.policy.inner.cameras.values())
+    encoder = next(iter(film.policy.inner.cameras.values()))
+    x = encoder.preprocess(torch.zeros(2, 32, 32, 3, dtype=torch.uint8) + 90)
+    words = torch.randn(2, 16)
+    with torch.no_grad():
+        encoder.film.weight.zero_(), encoder.film.bias.zero_()
+        assert torch.allclose(encoder.features(x, words), encoder.features(x))  # identity at zero
+        encoder.film.weight.normal_()
+        assert not torch.allclose(encoder.features(x, words), encoder.features(x))  # the words change what it sees
+    with EpisodeStore.open(path) as s:
+        arrays, _ = s.load(["obs.image_front", "obs.image_wrist"])
+    obs = {"state": torch.zeros(1, 1, film.obs_spec.dim), "obs.image_front": torch.from_numpy(arrays["obs.image_front"][:1, None]),
+           "obs.image_wrist": torch.from_numpy(arrays["obs.image_wrist"][:1, None]),
+           "instruction": torch.from_numpy(film.tokenizer.encode(["pick up the red cube"]))}
+    assert CONDITION in film.policy.condition(obs) and film.policy.predict(obs).shape[-1] == film.action.dim
+    result = evaluate(EvalConfig(run=str(tmp_path / "film"), episodes=1, device="cpu"))
+    assert result["episodes"] == 1
