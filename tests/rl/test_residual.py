@@ -177,3 +177,21 @@ def test_same_seed_same_residual(base_and_residual: tuple[Path, Path, Path], tmp
                                           minibatches=2, hidden=(16,), eval_episodes=1), init=str(base), data=str(demos)))
         weights.append((tmp_path / name / ckpt.POLICY_FILE).read_bytes())
     assert weights[0] == weights[1]
+
+
+@pytest.mark.parametrize("algo", ["diffusion", "act"])
+def test_a_residual_corrects_diffusion_and_act(algo: str, reach_demos, tiny_bc_config, tmp_path: Path) -> None:
+    """Any imitation run is a base: a diffusion policy (its sampling seeded per episode) and ACT run under
+    the residual as demo eval runs them, and the run evaluates."""
+    from demo.training.config import for_policy
+
+    base = tmp_path / algo
+    algorithms.train(algo, for_policy(algo, data=str(reach_demos(8)), out=str(base), steps=20, batch_size=16, seed=0))
+    out = tmp_path / "residual"
+    train(ResidualConfig(rl=PPOConfig(out=str(out), total_steps=100, num_envs=2, num_steps=50, epochs=1, minibatches=2,
+                                      hidden=(16,), eval_episodes=1), init=str(base), data=str(reach_demos(8)), demos=2))
+    bundle = ckpt.load_bundle(out)
+    assert bundle.algo == algo and bundle.residual is not None
+    from demo.cli.main import main
+
+    assert main(["eval", str(out), "--episodes", "1"]) == 0
