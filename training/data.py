@@ -40,7 +40,7 @@ from demo.errors import DemoError
 from demo.store import EpisodeStore, WindowSampler
 from demo.store.instructions import episode_instructions
 from demo.training.config import TrainConfig
-from demo.policies.instruction import INSTRUCTION, InstructionTokenizer, pretrained_text, text_config
+from demo.policies.instruction import INSTRUCTION, InstructionTokenizer, PretrainedText, pretrained_text, text_config
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import PolicySpec
@@ -92,18 +92,20 @@ def batch_to(batch: Batch, device: torch.device) -> Batch:
 class Instructions:
     """Every frame's instruction as token ids: ``tokens[of_frame[i]]`` is frame ``i``'s ``[max_tokens]``."""
 
-    tokenizer: InstructionTokenizer  # trained on the training episodes' instructions
+    tokenizer: InstructionTokenizer  # trained on the training episodes' instructions (or the pretrained encoder's)
     texts: tuple[str, ...]  # the distinct instructions ("" for an episode without one)
     tokens: np.ndarray  # [len(texts), max_tokens] int64
     of_frame: np.ndarray  # [N] index into texts
+    pretrained: PretrainedText | None = None  # --text-opt init=RUN: the encoder that starts the policy's, read once
 
     @classmethod
-    def of(cls, tokenizer: InstructionTokenizer, per_episode: Sequence[str], ends: np.ndarray) -> "Instructions":
+    def of(cls, tokenizer: InstructionTokenizer, per_episode: Sequence[str], ends: np.ndarray,
+           pretrained: PretrainedText | None = None) -> "Instructions":
         texts = tuple(sorted(set(per_episode)))
         index = {text: k for k, text in enumerate(texts)}
         lengths = np.diff(np.concatenate([[0], ends]))
         of_frame = np.repeat(np.array([index[t] for t in per_episode], np.int64), lengths)
-        return cls(tokenizer, texts, tokenizer.encode(texts), of_frame)
+        return cls(tokenizer, texts, tokenizer.encode(texts), of_frame, pretrained)
 
 
 @dataclass
@@ -167,7 +169,8 @@ class TrainingData:
         raw = _load_arrays(store, self.obs_spec, self.relative)
         instructions = None
         if self.instructions is not None:  # the same vocabulary: new words are unknown to it
-            instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3])
+            instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3],
+                                           self.instructions.pretrained)
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
                        ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
                        sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions)
@@ -303,6 +306,8 @@ def _instructions(config: TrainConfig, stores: Sequence[EpisodeStore], sources: 
     texts = episode_instructions(stores)
     trained = sorted({texts[i] for i in train_eps})
     init = text_config(config.text).init  # a pretrained text encoder turns conditioning on
+    if config.instructions is False and init:
+        raise DemoError("--text-opt", f"init={init} starts an instruction encoder, and --no-instructions trains without one")
     if config.instructions is False or (config.instructions is None and not init and len(set(trained) - {""}) < 2):
         return None
     if "" in trained:
@@ -310,8 +315,10 @@ def _instructions(config: TrainConfig, stores: Sequence[EpisodeStore], sources: 
         source = next(s for s in sources if s.first_episode <= i < s.first_episode + s.episodes)
         raise DemoError(source.path, f"episode {i - source.first_episode} has no instruction, and the policy follows "
                                      "instructions: collect with --instruction, or train with --no-instructions")
-    tokenizer = pretrained_text(init).tokenizer if init else InstructionTokenizer.train(trained)
-    return Instructions.of(tokenizer, texts, ends)
+    if init:
+        pretrained = pretrained_text(init)
+        return Instructions.of(pretrained.tokenizer, texts, ends, pretrained)
+    return Instructions.of(InstructionTokenizer.train(trained), texts, ends)
 
 
 def _join(arrays: list[np.ndarray]) -> np.ndarray:

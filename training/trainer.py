@@ -46,7 +46,7 @@ from demo.errors import DemoError
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
 from demo.policies.device import resolve_device
-from demo.policies.instruction import pretrained_text, text_config, with_pretrained_shape
+from demo.policies.instruction import text_config, with_pretrained_shape
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.policy import build_policy, policy_config
 from demo.policies.visuomotor import encoder_config
@@ -105,7 +105,7 @@ class TrainingRun(Run):
         if seed is not None:
             torch.manual_seed(seed)
         text: Any = self.config.text
-        pretrained = pretrained_text(text_config(text).init) if data.instructions is not None and text.get("init") else None
+        pretrained = data.instructions.pretrained if data.instructions is not None else None
         if pretrained is not None:
             try:
                 text = with_pretrained_shape(text, pretrained)

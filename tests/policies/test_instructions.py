@@ -278,6 +278,8 @@ def test_a_pretrained_text_encoder_starts_another_run(dots: Path, tmp_path: Path
     assert json.loads((frozen / "run.json").read_text())["policy"]["text"]["init"] == str(first)
     one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "bad"), "--text-opt",
                     f"init={first}", "--text-opt", "dim=64", *common], "--text-opt", "dim=64")
+    one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "off"), "--text-opt", f"init={first}",
+                    "--no-instructions", *common], "--text-opt", "--no-instructions")
     plain = tmp_path / "plain"
     assert main(["train", str(dots / "dots.zarr"), "--out", str(plain), "--no-instructions", *common]) == 0
     one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "bad2"), "--text-opt", f"init={plain}",
