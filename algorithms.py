@@ -21,6 +21,7 @@ aggrevate, dart,    task's expert   (the member's own options: ``--algo-opt``)
 perturb
 ppo                 the simulator   :class:`PPOConfig` / :func:`demo.rl.ppo.train`
 residual            a run + sim     :class:`ResidualConfig` / :func:`demo.rl.residual.train`
+finetune            a run + sim     :class:`FinetuneConfig` / :func:`demo.rl.finetune.train`
 gail, airl          a store + sim   :class:`AdversarialConfig` / :func:`demo.rl.adversarial.train`
 maxent,             a store + sim   :class:`LinearIRLConfig` / :func:`demo.rl.irl_linear.train`
 apprenticeship
@@ -39,7 +40,7 @@ from typing import Any
 
 from demo.errors import DemoError
 from demo.imitation.config import FAMILY, DaggerConfig
-from demo.rl.config import AdversarialConfig, LinearIRLConfig, PPOConfig, ResidualConfig
+from demo.rl.config import AdversarialConfig, FinetuneConfig, LinearIRLConfig, PPOConfig, ResidualConfig
 from demo.training.config import TrainConfig
 
 TRAIN = "train"  # `demo train STORE`: imitation from a store
@@ -79,6 +80,8 @@ ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (
     Algorithm("ppo", IRL, PPOConfig, "demo.rl.ppo:train", "PPO on the dense task reward (or a learned one)"),
     Algorithm("residual", IRL, ResidualConfig, "demo.rl.residual:train",
               "residual RL: PPO on a bounded correction of a frozen imitation run (--init RUN)"),
+    Algorithm("finetune", IRL, FinetuneConfig, "demo.rl.finetune:train",
+              "full fine-tuning: PPO on a BC run's own weights, its demonstrations in a BC term (--init RUN)"),
     Algorithm("gail", IRL, AdversarialConfig, "demo.rl.adversarial:train", "GAIL: a discriminator's reward, PPO", named_by="kind"),
     Algorithm("airl", IRL, AdversarialConfig, "demo.rl.adversarial:train", "AIRL: a disentangled reward, PPO", named_by="kind"),
     Algorithm("maxent", IRL, LinearIRLConfig, "demo.rl.irl_linear:train", "MaxEnt IRL with a linear reward", named_by="method"),

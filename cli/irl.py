@@ -1,5 +1,6 @@
 """`demo irl train`: reinforcement learning on the tasks' Gymnasium environments: PPO on the dense task
-reward (or a learned one: reward transfer), residual RL on a frozen imitation run, GAIL and AIRL, and
+reward (or a learned one: reward transfer), residual RL on a frozen imitation run, full fine-tuning of a BC
+run, GAIL and AIRL, and
 linear-reward IRL (MaxEnt, apprenticeship)."""
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from demo.cli.options import json_option, overwrite_option, robot_option
 from demo.cli.output import kv_table, report_console, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
-from demo.rl.config import ACTIONS, AdversarialConfig, LinearIRLConfig, PPOConfig, ResidualConfig
+from demo.rl.config import ACTIONS, AdversarialConfig, FinetuneConfig, LinearIRLConfig, PPOConfig, ResidualConfig
 from demo.store import EpisodeStore
 
 irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PPO, GAIL, AIRL, MaxEnt IRL, apprenticeship.",
@@ -22,8 +23,9 @@ irl_app = typer.Typer(help="Reinforcement and inverse reinforcement learning: PP
 app.add_typer(irl_app, name="irl")
 
 ALGOS = algorithms.names(algorithms.IRL)
-_P, _A, _L, _R = PPOConfig(), AdversarialConfig(), LinearIRLConfig(), ResidualConfig()  # the defaults live in the library's dataclasses
-FROM_SIMULATOR = ("ppo", "residual")  # the algorithms that learn from the reward alone, without a store
+_P, _A, _L, _R, _F = PPOConfig(), AdversarialConfig(), LinearIRLConfig(), ResidualConfig(), FinetuneConfig()  # the defaults live in the library's dataclasses
+FROM_SIMULATOR = ("ppo", "residual", "finetune")  # the algorithms that learn from the reward alone, without a store
+FROM_RUN = ("residual", "finetune")  # the algorithms that start from an imitation run (--init), on its task and robot
 # Which option sets which field (tests/rl/test_cli_options.py holds these to the dataclasses and the command).
 FIELD_OPTIONS = {
     "PPOConfig": {"task": "--task", "robot": "--robot", "out": "--out", "reward": "--reward", "action": "--action",
@@ -35,26 +37,31 @@ FIELD_OPTIONS = {
                           "disc_obs_keys": "--disc-obs-keys", "grad_penalty": "--grad-penalty", "init_bc": "--init-bc",
                           "gail_reward": "--gail-reward", "airl_reward": "--airl-reward"},
     "ResidualConfig": {"init": "--init", "scale": "--scale", "data": "STORE", "demos": "--demos", "bc_coef": "--bc-coef"},
+    "FinetuneConfig": {"init": "--init", "data": "STORE", "demos": "--demos", "bc_coef": "--bc-coef",
+                       "policy_lr": "--policy-lr"},
     "LinearIRLConfig": {"data": "STORE", "method": "--algo", "demos": "--demos", "inner_iterations": "--inner-iterations"},
 }
 
 
 @irl_app.command("train")
 def train(
-    store: str = typer.Argument(None, metavar="STORE", help="Demonstrations (gail, airl, maxent, apprenticeship; residual: "
-                                "kept in a BC term): a store of the task in the policy's action representation.",
+    store: str = typer.Argument(None, metavar="STORE", help="Demonstrations (gail, airl, maxent, apprenticeship; residual, "
+                                "finetune: kept in a BC term): a store of the task in the policy's action representation.",
                                 show_default=False),
     out: Path = typer.Option(..., "--out", "-o", metavar="RUN", help="Run directory to write (demo eval runs it).",
                              show_default=False),
     algo: str = typer.Option("ppo", help=f"Algorithm: {', '.join(ALGOS)}."),
     task: str = typer.Option(None, help="Task.", show_default="the store's; ppo: reach"),
-    reward: str = typer.Option("task", metavar="task|RUN", help="ppo, residual: the dense task reward (demo.rl.rewards), "
+    reward: str = typer.Option("task", metavar="task|RUN", help="ppo, residual, finetune: the dense task reward (demo.rl.rewards), "
                                "or the reward learned by an IRL run (maxent, apprenticeship, airl): reward transfer."),
     init: str = typer.Option(None, "--init", metavar="RUN", help="residual, gail: the imitation run to correct (its task, "
-                             "options, robot and actions; it stays frozen): the policy is a residual over it.",
-                             show_default="none; residual needs one"),
-    bc_coef: float = typer.Option(_R.bc_coef, help="residual with a STORE, gail --init: the weight of the BC term that "
-                                  "keeps the demonstrations during RL."),
+                             "options, robot and actions; it stays frozen): the policy is a residual over it. finetune: "
+                             "the BC run whose own weights PPO changes.",
+                             show_default="none; residual and finetune need one"),
+    bc_coef: float = typer.Option(_R.bc_coef, help="residual, finetune with a STORE, gail --init: the weight of the BC "
+                                  "term that keeps the demonstrations during RL."),
+    policy_lr: float = typer.Option(_F.policy_lr, help="finetune: Adam's learning rate of the BC run's weights "
+                                    "(annealed; the critic's is --lr)."),
     scale: float = typer.Option(_R.scale, help="residual, gail --init: the largest correction, as a fraction of each "
                                 "action entry's half-range in the base run's data."),
     robot: str = robot_option(),
@@ -96,23 +103,26 @@ def train(
         raise DemoError("STORE", f"{algo} learns from demonstrations: name a STORE")
     if algo not in FROM_SIMULATOR and reward != "task":
         raise DemoError("--reward", f"{algo} learns its own reward; --reward applies to {' and '.join(FROM_SIMULATOR)}")
-    if algo == "residual" and init is None:
-        raise DemoError("--init", "residual corrects the imitation run --init names")
-    if init is not None and algo not in ("residual", "gail"):
-        raise DemoError("--init", f"names the imitation run a residual (residual, gail) corrects, not a start for {algo}")
-    if algo == "residual" and (task or robot):
-        raise DemoError("--task" if task else "--robot", "a residual runs on its base run's task and robot")
-    defaults = _R.rl if init is not None else _P  # a residual (residual, gail --init) has its own
-    rl = PPOConfig(task=task or (_store_task(store) if store and algo != "residual" else "reach"), robot=robot,
+    if algo in FROM_RUN and init is None:
+        raise DemoError("--init", f"{algo} starts from the imitation run --init names")
+    if init is not None and algo not in (*FROM_RUN, "gail"):
+        raise DemoError("--init", f"names the imitation run residual, finetune and gail start from, not a start for {algo}")
+    if algo in FROM_RUN and (task or robot):
+        raise DemoError("--task" if task else "--robot", f"{algo} runs on its imitation run's task and robot")
+    # RL from an imitation run (residual, gail --init, finetune) has its own PPO defaults
+    defaults = _F.rl if algo == "finetune" else _R.rl if init is not None else _P
+    rl = PPOConfig(task=task or (_store_task(store) if store and algo not in FROM_RUN else "reach"), robot=robot,
                    out=str(out), reward=reward, action=action, obs_keys=_keys(obs_keys), seed=seed,
                    total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
                    num_steps=defaults.num_steps if rollout is None else rollout, init_log_std=defaults.init_log_std,
                    lr=lr, ent_coef=ent_coef,
                    eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
     if algo == "ppo":
-        config: PPOConfig | AdversarialConfig | LinearIRLConfig | ResidualConfig = rl
+        config: PPOConfig | AdversarialConfig | LinearIRLConfig | ResidualConfig | FinetuneConfig = rl
     elif algo == "residual":
         config = ResidualConfig(rl=rl, init=init, scale=scale, data=store or "", demos=demos, bc_coef=bc_coef)
+    elif algo == "finetune":
+        config = FinetuneConfig(rl=rl, init=init, data=store or "", demos=demos, bc_coef=bc_coef, policy_lr=policy_lr)
     elif algo in ("gail", "airl"):
         config = AdversarialConfig(rl=rl, data=store, kind=algo, demos=demos, inputs=inputs, grad_penalty=grad_penalty,
                                    init_bc=init_bc, gail_reward=gail_reward, airl_reward=airl_reward,

@@ -146,7 +146,8 @@ class CompoundingConfig:
     max_labels: int | None = 6000  # a fixed expert-label budget for every horizon (HG-DAgger stops there; None: its rounds set it)
     hidden: tuple[int, ...] = (512, 512, 512)
     batch_size: int = 256
-    chunk: int = 16  # the chunked BC line
+    chunk: int = 16  # the chunked BC line (and every family member's learner with chunked_learners)
+    chunked_learners: bool = False  # the family's learners chunked (``chunk``, ensembled) like the chunked BC line
     binary_gripper: bool = True  # every method executes the gripper as open/closed (see demo.policies.actor.ExecConfig.binary)
     noise: float = 0.01  # rad: the fixed-noise DART line's noise (demo collect --noise; on stack 0.02 leaves 3/10 expert episodes successful, 0.05 none)
     val_fraction: float = 0.2  # held-out demonstrations: SafeDAgger's classifier and DART's noise are fitted on them
@@ -217,12 +218,13 @@ def fit_growth(points: list[tuple[float, int, int]]) -> dict[str, Any]:
 
 # What a value's cached stores and runs depend on; reruns with other values need another --out.
 _CACHE_KEYS = ("task", "option", "task_options", "seed", "demos", "pool", "rounds", "episodes_per_round", "beta", "gate", "steps",
-               "round_steps", "warm_start", "max_labels", "hidden", "batch_size", "chunk", "binary_gripper", "noise",
+               "round_steps", "warm_start", "max_labels", "hidden", "batch_size", "chunk", "chunked_learners",
+               "binary_gripper", "noise",
                "val_fraction", "candidates", "sigma", "eval_episodes")
 
 
 # What a directory made before these keys existed ran with.
-_BEFORE_THE_KEY_EXISTED = {"warm_start": False, "max_labels": None}
+_BEFORE_THE_KEY_EXISTED = {"warm_start": False, "max_labels": None, "chunked_learners": False}
 
 
 def _check_cached_configuration(d: Path, c: CompoundingConfig) -> None:
@@ -279,7 +281,8 @@ class _Value:
         with self.pool() as pool:
             demos = _subset(pool, self.d / f"demos{c.demos}.zarr", c.demos)
         gated = method in ("hg_dagger", "safedagger")
-        config = DaggerConfig(train=_train_config(c, demos, run_dir), rounds=rounds, episodes_per_round=episodes,
+        chunk = c.chunk if c.chunked_learners else 1
+        config = DaggerConfig(train=_train_config(c, demos, run_dir, chunk=chunk), rounds=rounds, episodes_per_round=episodes,
                               round_steps=c.round_steps, warm_start=c.warm_start, beta=c.beta,
                               gate=c.gate if gated else None, max_labels=budget)
         algorithms.train(FAMILY_OF[method], config, options=options, overwrite=True,
@@ -398,7 +401,8 @@ def _round_summary(r: dict[str, Any]) -> dict[str, Any]:
 def _name(method: str, c: CompoundingConfig) -> str:
     return {"bc": "BC", "bc_chunk": f"BC + chunking ({c.chunk})", "dart_fixed": f"DART, fixed noise {c.noise} rad",
             "dart": "DART (estimated noise)", "perturb": "state perturbation", "dagger": f"DAgger (beta {c.beta})",
-            "hg_dagger": f"HG-DAgger ({c.gate})", "safedagger": "SafeDAgger", "aggrevate": "AggreVaTe"}[method]
+            "hg_dagger": f"HG-DAgger ({c.gate})", "safedagger": "SafeDAgger", "aggrevate": "AggreVaTe"}[method] + (
+        f", chunked ({c.chunk})" if c.chunked_learners and method in FAMILY_OF else "")
 
 
 def _metrics(run_dir: Path) -> dict[str, Any]:

@@ -132,31 +132,59 @@ class AdversarialConfig:
 
 
 @dataclass
-class ResidualConfig:
-    """Residual RL on a frozen imitation run (:mod:`demo.rl.residual`); the task, options, robot and action
-    representation are the base run's, the PPO settings ``rl``'s."""
+class FromImitationConfig:
+    """What RL from an imitation run needs: the run, the PPO settings, the demonstrations kept in a BC term.
+    The task, options, robot and action representation are the run's; :class:`ResidualConfig` and
+    :class:`FinetuneConfig` add how the run is changed."""
 
-    # PPO's settings but a narrower initial exploration (std 0.2 of the bound: 54 -> 80% on pick's monitor at
-    # 400,000 steps; PPO's 0.37: 68% at 302,000) and pick's horizon per rollout (docs/results.md)
+    # PPO's settings but a narrower initial exploration (std 0.2 of the residual's bound: 54 -> 80% on pick's
+    # monitor at 400,000 steps; PPO's 0.37: 68% at 302,000) and pick's horizon per rollout (docs/results.md)
     rl: PPOConfig = field(default_factory=lambda: PPOConfig(total_steps=400_000, num_steps=160, init_log_std=-1.6))
-    init: str = ""  # the imitation run directory the residual corrects
-    scale: float = 0.1  # the largest correction: this fraction of each action entry's half-range in the base's data
-    data: str = ""  # demonstrations kept in a BC term during RL (a store of the base's task and actions)
+    init: str = ""  # the imitation run directory RL starts from
+    data: str = ""  # demonstrations kept in a BC term during RL (a store of the run's task and actions)
     demos: int | None = None  # the first N successful ones (default all)
     bc_coef: float = 1.0  # the BC term's weight beside PPO's loss (with data)
 
     def check(self) -> None:
         self.rl.check()
         if not self.init:
-            raise DemoError("--init", "name the imitation run the residual corrects")
+            raise DemoError("--init", "name the imitation run RL starts from")
         if self.bc_coef < 0:
             raise DemoError("--bc-coef", f"must be >= 0, got {self.bc_coef}")
+
+    def to_json(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["rl"] = self.rl.to_json()
+        return d
+
+
+@dataclass
+class ResidualConfig(FromImitationConfig):
+    """Residual RL on a frozen imitation run (:mod:`demo.rl.residual`)."""
+
+    scale: float = 0.1  # the largest correction: this fraction of each action entry's half-range in the base's data
+
+    def check(self) -> None:
+        super().check()
         if not 0 < self.scale <= 1:
             raise DemoError("--scale", f"the residual's bound is a fraction in (0, 1] of each action's range, got {self.scale}")
 
-    def to_json(self) -> dict[str, Any]:
-        return {"rl": self.rl.to_json(), "init": self.init, "scale": self.scale, "data": self.data, "demos": self.demos,
-                "bc_coef": self.bc_coef}
+
+@dataclass
+class FinetuneConfig(FromImitationConfig):
+    """Full fine-tuning: PPO on an imitation run's own weights (:mod:`demo.rl.finetune`)."""
+
+    # exploration std 0.02 of each action's half-range (normalised units): the residual's at its defaults
+    # (0.2 of a bound of 0.1), so both explore as far around the imitation policy
+    rl: PPOConfig = field(default_factory=lambda: PPOConfig(total_steps=400_000, num_steps=160, init_log_std=-3.9))
+    # Adam's learning rate of the imitation weights (annealed with PPO's; the critic's is rl.lr). On pick at 3e-5 the
+    # first iteration's KL was 1.2 (clip fraction 0.54) and the monitor fell 56 -> 28% in 25,600 steps; 3e-6: KL 0.018
+    policy_lr: float = 3e-6
+
+    def check(self) -> None:
+        super().check()
+        if self.policy_lr <= 0:
+            raise DemoError("--policy-lr", f"must be > 0, got {self.policy_lr}")
 
 
 @dataclass

@@ -88,10 +88,12 @@ MIN_STD = 0.01  # floor of the observation std (data units: m, rad, 1), so a con
 
 # ====================================================================================== running statistics
 class RunningMeanStd:
-    """Mean and variance of every vector seen (parallel Welford update), float64."""
+    """Mean and variance of every vector seen (parallel Welford update), float64. ``standardized``: only the
+    first so many entries are tracked, the rest stay at mean 0 and variance 1 (inputs already normalised)."""
 
-    def __init__(self, dim: int):
+    def __init__(self, dim: int, standardized: int | None = None):
         self.mean, self.var, self.count = np.zeros(dim), np.ones(dim), 1e-4
+        self.standardized = dim if standardized is None else standardized
 
     def update(self, x: np.ndarray) -> None:
         x = np.asarray(x, np.float64).reshape(-1, self.mean.shape[0])
@@ -100,6 +102,7 @@ class RunningMeanStd:
         self.mean = self.mean + delta * n / total
         self.var = (self.var * self.count + var * n + delta**2 * self.count * n / total) / total
         self.count = total
+        self.mean[self.standardized:], self.var[self.standardized:] = 0.0, 1.0
 
     def normalizer(self) -> MinMaxNormalizer:
         """``(x - mean) / std`` as a :class:`MinMaxNormalizer` (std floored at :data:`MIN_STD`)."""
@@ -244,16 +247,27 @@ class Rollout:
 
 
 class Agent:
-    """The policy, the critic, their optimiser and the observation statistics."""
+    """The policy, the critic, their optimiser and the observation statistics.
 
-    def __init__(self, config: PPOConfig, obs_dim: int, action_dim: int):
+    By default PPO's Gaussian and critic MLPs, one learning rate; an algorithm may bring its own modules
+    (``policy`` with ``distribution``, ``mean`` and ``log_std`` as :class:`GaussianPolicy` has them), the
+    parameter ``groups`` and their learning rates, and how many leading entries of the observation are
+    standardised (``standardized``; the rest arrive normalised)."""
+
+    def __init__(self, config: PPOConfig, obs_dim: int, action_dim: int, policy: nn.Module | None = None,
+                 critic: nn.Module | None = None, groups: Sequence[tuple[list[nn.Parameter], float]] | None = None,
+                 standardized: int | None = None):
         self.config = config
-        spec = PolicySpec(obs_dim, action_dim)
-        self.policy = GaussianPolicy(spec, GaussianConfig(config.hidden, config.init_log_std))
-        self.critic = mlp([obs_dim, *config.hidden, 1], out_gain=1.0)
-        params = [*self.policy.parameters(), *self.critic.parameters()]
-        self.optimizer = torch.optim.Adam(params, lr=config.lr, eps=1e-5)
-        self.obs_rms = RunningMeanStd(obs_dim)
+        self.policy = policy if policy is not None else GaussianPolicy(PolicySpec(obs_dim, action_dim),
+                                                                        GaussianConfig(config.hidden, config.init_log_std))
+        self.critic = critic if critic is not None else mlp([obs_dim, *config.hidden, 1], out_gain=1.0)
+        if groups is None:
+            groups = [([*self.policy.parameters(), *self.critic.parameters()], config.lr)]
+        else:
+            groups = [*groups, (list(self.critic.parameters()), config.lr)]
+        self.optimizer = torch.optim.Adam([{"params": p, "lr": lr} for p, lr in groups], eps=1e-5)
+        self.lrs = [lr for _, lr in groups]  # each group's rate before annealing
+        self.obs_rms = RunningMeanStd(obs_dim, standardized)
         self.obs_norm = self.obs_rms.normalizer()
 
     def act(self, obs_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -385,7 +399,7 @@ def ppo_update(agent: Agent, obs_n: np.ndarray, actions: np.ndarray, logprobs: n
                       ("ret", returns))}
     n = len(t["obs"])
     size = n // c.minibatches
-    params = [*agent.policy.parameters(), *agent.critic.parameters()]
+    params = [p for group in agent.optimizer.param_groups for p in group["params"]]
     stats: dict[str, float] = {}
     for _ in range(c.epochs):
         order = torch.from_numpy(rng.permutation(n))
@@ -432,7 +446,7 @@ class RLRun(Run):
         self.reward = task_reward(config.task, "--task")
         self.action_norm = action_bounds(config, self.pool.n_arm)
         self.controller = self.make_controller()
-        self.agent = Agent(config, self.controller.obs_dim, self.pool.action_spec.dim)
+        self.agent = self.make_agent()
         self.rng = np.random.default_rng([config.seed, 0x990])
         self.scaler = RewardScaler(config.num_envs, config.gamma)
         self.steps = self.iteration = 0
@@ -442,8 +456,7 @@ class RLRun(Run):
             "algo": name,
             "created": ckpt.now(),
             "command": command,
-            "policy": ckpt.policy_record("ppo", self.agent.policy, self.pool.obs_spec, self.pool.action_spec,
-                                         ExecConfig(), self.pool.relative),
+            "policy": self.policy_record(),
             "task": {"name": config.task, "options": dict(env.sim.task_options), "horizon": int(env.horizon)},
             "robot": robot_record(env.sim.robot),
             "fps": env.sim.fps,
@@ -456,6 +469,15 @@ class RLRun(Run):
     def make_controller(self) -> Controller:
         """What the agent's actions mean (PPO's own: the whole command)."""
         return Controller(self.pool, self.action_norm)
+
+    def policy_record(self) -> dict[str, Any]:
+        """``run.json``'s policy section: what ``demo eval`` rebuilds the policy from."""
+        return ckpt.policy_record("ppo", self.agent.policy, self.pool.obs_spec, self.pool.action_spec, ExecConfig(),
+                                  self.pool.relative)
+
+    def make_agent(self) -> Agent:
+        """The networks PPO trains (its own Gaussian and critic)."""
+        return Agent(self.config, self.controller.obs_dim, self.pool.action_spec.dim)
 
     def auxiliary_loss(self) -> Callable[[], torch.Tensor] | None:
         """A loss added to PPO's at every minibatch step (none here; a residual's BC term)."""
@@ -505,8 +527,8 @@ class RLRun(Run):
         self.iteration += 1
         it, t0 = self.iteration, time.perf_counter()
         if c.anneal_lr:
-            for group in agent.optimizer.param_groups:
-                group["lr"] = c.lr * (1.0 - (it - 1) / c.iterations)
+            for group, lr in zip(agent.optimizer.param_groups, agent.lrs):
+                group["lr"] = lr * (1.0 - (it - 1) / c.iterations)
         roll = collect(agent, pool, self.controller, self.reward, c.num_steps)
         collect_s = time.perf_counter() - t0
         self.steps += c.batch

@@ -55,7 +55,7 @@ from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.residual import Residual, residual_bound, residual_input
 from demo.progress import Progress
-from demo.rl.config import ACTIONS, PPOConfig, ResidualConfig
+from demo.rl.config import ACTIONS, FromImitationConfig, PPOConfig, ResidualConfig
 from demo.rl.expert_data import demonstrations
 from demo.rl.ppo import Controller, EnvPool, RLRun, learned_reward
 from demo.store import EpisodeStore
@@ -89,33 +89,49 @@ class ResidualController(Controller):
 class ResidualRun(RLRun):
     """PPO on a residual over the frozen imitation policy ``config.init`` (module docstring)."""
 
-    def __init__(self, config: ResidualConfig, *, name: str = "residual", progress: Progress | None = None,
+    def __init__(self, config: FromImitationConfig, *, name: str = "residual", progress: Progress | None = None,
                  overwrite: bool = False, command: str | None = None):
         """``name``: the algorithm recorded (``residual``; ``gail`` when GAIL's reward trains it)."""
         config.check()
+        self.from_imitation = config
         self.base = ckpt.load_bundle(config.init)
-        self.scale = config.scale
+        self.check_base(config)
         rl = _rl_config(config, self.base)
         robot = pick_robot(self.base, None)
         super().__init__(rl, name=name, progress=progress, overwrite=overwrite, command=command, robot=robot,
                          cameras=self.base.obs_spec.cameras())
         self.record.update({
-            "policy": self.base.run["policy"],  # the base policy, unchanged: demo eval rebuilds it from here
-            "residual": self.residual().to_json(),
+            **self.change_record(),
             "init": {"run": str(Path(config.init).resolve()), "algo": self.base.algo},
             "data": self.base.run.get("data"),
             "train": config.to_json(),
         })
         self.metrics["start"] = None
         self.bc_coef = config.bc_coef
-        self.demo_inputs: np.ndarray | None = None  # [M, D] the residual's raw inputs at demonstrated states
-        self.demo_targets: np.ndarray | None = None  # [M, A] the corrections there, normalised to [-1, 1]
+        self.demo_inputs: np.ndarray | None = None  # [M, D] the agent's raw inputs at demonstrated states
+        self.demo_targets: np.ndarray | None = None  # [M, A] the agent's normalised actions there
         if config.data:
-            self.demo_inputs, self.demo_targets, episodes = demonstration_targets(
-                config.data, config.demos, self.base, self.pool.obs_spec, self.controller.bound)
+            self.demo_inputs, self.demo_targets, episodes = self.demonstration_targets(config.data, config.demos)
             self.record["demonstrations"] = {"path": str(Path(config.data).resolve()), "episodes": episodes,
                                              "states": int(len(self.demo_inputs)), "bc_coef": config.bc_coef}
             self.bc_rng = np.random.default_rng([config.rl.seed, 0xBC])
+
+    def policy_record(self) -> dict[str, Any]:
+        return self.base.run["policy"]  # the base policy: demo eval rebuilds it from here
+
+    def check_base(self, config: FromImitationConfig) -> None:
+        """Refuse a base run this algorithm cannot start from (any runs under a residual)."""
+        assert isinstance(config, ResidualConfig)
+        self.scale = config.scale
+
+    def change_record(self) -> dict[str, Any]:
+        """What ``run.json`` records of the change to the base policy (the residual's record)."""
+        return {"residual": self.residual().to_json()}
+
+    def demonstration_targets(self, path: str, demos: int | None) -> tuple[np.ndarray, np.ndarray, int]:
+        """The agent's raw inputs ``[M, D]`` at demonstrated states and its normalised actions there ``[M, A]`` (the
+        BC term's), and the number of demonstrations."""
+        return demonstration_targets(path, demos, self.base, self.pool.obs_spec, self.controller.bound)
 
     def make_controller(self) -> ResidualController:
         return ResidualController(self.pool, self.base, residual_bound(self.base.action_norm, self.scale))
@@ -160,15 +176,29 @@ class ResidualRun(RLRun):
         return {**super().final_metrics(), "start_success_rate": start.get("success_rate"),
                 "min_success_rate": min(evals) if evals else None}
 
+    def run(self, config: FromImitationConfig) -> dict[str, Any]:
+        """Train: the starting line (the base policy, before any update), every iteration; the summary."""
+        reward = None
+        if config.rl.reward != "task":
+            reward, self.record["learned_reward"] = learned_reward(config.rl.reward, self)
+        self.open()
+        self.evaluate()  # the starting line: the base policy as it was trained
+        self.learn(reward)
+        return self.finish()
+
+
+def frame_keys(base: ckpt.PolicyBundle, obs_spec: ObsSpec) -> list[str]:
+    """The frame entries a base policy and an agent reading ``obs_spec`` read."""
+    return list(dict.fromkeys([*base.obs_spec.source_keys, *base.obs_spec.images, *obs_spec.source_keys,
+                               *([base.relative.obs_key] if base.relative is not None else [])]))
+
 
 def demonstration_targets(path: str, demos: int | None, base: ckpt.PolicyBundle, obs_spec: ObsSpec,
                           bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The residual's raw inputs ``[M, D]`` at every state of the first ``demos`` successful demonstrations,
     the corrections ``[M, A]`` (normalised by ``bound``, clipped to [-1, 1]) from the base policy's action
     there (replayed over each episode's frames in order) to the demonstrated one, and the episode count."""
-    task = str(base.task.get("name"))
-    keys = list(dict.fromkeys([*base.obs_spec.source_keys, *base.obs_spec.images, *obs_spec.source_keys,
-                               *([base.relative.obs_key] if base.relative is not None else [])]))
+    task, keys = str(base.task.get("name")), frame_keys(base, obs_spec)
     inputs, targets = [], []
     actor = base.actor()
     with EpisodeStore.open(path) as store:
@@ -184,7 +214,7 @@ def demonstration_targets(path: str, demos: int | None, base: ckpt.PolicyBundle,
     return np.asarray(inputs, np.float32), np.asarray(targets, np.float32), len(chosen)
 
 
-def _rl_config(config: ResidualConfig, base: ckpt.PolicyBundle) -> PPOConfig:
+def _rl_config(config: FromImitationConfig, base: ckpt.PolicyBundle) -> PPOConfig:
     """PPO's configuration for a residual over ``base``: its task, options and action representation."""
     action = base.action.name
     if action not in ACTIONS:
@@ -202,10 +232,4 @@ def train(config: ResidualConfig, *, progress: Progress | None = None, overwrite
           command: str | None = None) -> dict[str, Any]:
     """Residual RL into ``config.rl.out`` over the imitation run ``config.init``; returns the summary."""
     with ResidualRun(config, progress=progress, overwrite=overwrite, command=command) as rl:
-        reward = None
-        if config.rl.reward != "task":
-            reward, rl.record["learned_reward"] = learned_reward(config.rl.reward, rl)
-        rl.open()
-        rl.evaluate()  # the starting line: the base policy with a residual that is still ~0
-        rl.learn(reward)
-        return rl.finish()
+        return rl.run(config)

@@ -156,7 +156,9 @@ def bench_compounding(
                                    "0: none, HG-DAgger's rounds set each horizon's budget."),
     hidden: str = typer.Option(",".join(map(str, _C.hidden)), help="Hidden widths of every method's MLP."),
     batch_size: int = typer.Option(_C.batch_size, help="Windows per batch of every method."),
-    chunk: int = typer.Option(_C.chunk, help="Chunk length of the chunked-BC line."),
+    chunk: int = typer.Option(_C.chunk, help="Chunk length of the chunked-BC line (and of the family's learners with --chunked-learners)."),
+    chunked_learners: bool = typer.Option(_C.chunked_learners, "--chunked-learners/--single-step-learners",
+                                          help="The DAgger family's learners chunked and ensembled like the chunked-BC line."),
     noise: float = typer.Option(_C.noise, help="Fixed-noise DART line: noise on executed joint targets (rad)."),
     val_fraction: float = typer.Option(_C.val_fraction, help="Held-out demonstrations (SafeDAgger's classifier, DART's noise)."),
     candidates: int = typer.Option(_C.candidates, help="AggreVaTe: actions tried per labelled state (1: the expert's alone)."),
@@ -177,7 +179,8 @@ def bench_compounding(
                                pool=pool, rounds=rounds, episodes_per_round=episodes_per_round, beta=beta, gate=gate,
                                steps=steps, round_steps=round_steps, warm_start=warm_start, max_labels=max_labels or None,
                                hidden=ints("--hidden", hidden), batch_size=batch_size,
-                               chunk=chunk, noise=noise, val_fraction=val_fraction, candidates=candidates, sigma=sigma,
+                               chunk=chunk, chunked_learners=chunked_learners, noise=noise, val_fraction=val_fraction,
+                               candidates=candidates, sigma=sigma,
                                eval_episodes=eval_episodes,
                                workers=workers)
     config.check()

@@ -91,6 +91,21 @@ def test_a_fixed_label_budget_stops_hg_dagger_and_is_part_of_the_cache(tmp_path:
         dataclasses.replace(config, max_labels=0).check()
 
 
+@pytest.mark.slow
+def test_chunked_learners_give_the_family_the_chunked_bc_learner(tmp_path: Path) -> None:
+    config = CompoundingConfig(out=str(tmp_path), values=(1,), demos=3, pool=6, rounds=1, episodes_per_round=1,
+                               steps=30, round_steps=20, hidden=(16,), batch_size=32, chunk=4, eval_episodes=2,
+                               val_fraction=0.34, methods=("bc", "bc_chunk", "hg_dagger"), chunked_learners=True)
+    result = run(config, log=lambda text: None)
+    (row,) = result["rows"]
+    hg, bc, chunked = (load_bundle(row[m]["run"]) for m in ("hg_dagger", "bc", "bc_chunk"))
+    assert hg.policy.spec.horizon == chunked.policy.spec.horizon == 4 and bc.policy.spec.horizon == 1
+    assert hg.execution.ensemble == chunked.execution.ensemble is not None
+    assert result["config"]["chunked_learners"] is True
+    with pytest.raises(DemoError, match="other chunked_learners"):
+        run(dataclasses.replace(config, chunked_learners=False), log=lambda text: None)
+
+
 def test_fit_recovers_the_failure_rate() -> None:
     horizons = [160, 260, 360, 460]
     rate, s0 = 0.004, 0.95

@@ -8,9 +8,9 @@ import dataclasses
 from demo import algorithms
 from demo.cli import irl as cli_irl
 from demo.cli.main import commands
-from demo.rl.config import AdversarialConfig, LinearIRLConfig, PPOConfig, ResidualConfig
+from demo.rl.config import AdversarialConfig, FinetuneConfig, LinearIRLConfig, PPOConfig, ResidualConfig
 
-CONFIGS = {c.__name__: c for c in (PPOConfig, AdversarialConfig, LinearIRLConfig, ResidualConfig)}
+CONFIGS = {c.__name__: c for c in (PPOConfig, AdversarialConfig, LinearIRLConfig, ResidualConfig, FinetuneConfig)}
 
 
 def test_every_mapped_option_exists_and_has_the_fields_default() -> None:

@@ -57,22 +57,12 @@ def test_the_run_keeps_the_base_and_records_the_starting_line(base_and_residual:
     assert (out / "curves.png").is_file()
 
 
-def _frames(steps: int = 30) -> list[dict[str, np.ndarray]]:
-    env = DemoEnv("reach", store_layout=True, pos_tol=0.04, rot_tol=0.4)
-    frame, _ = env.reset(seed=5)
-    out = [frame]
-    for t in range(steps - 1):  # a slow sweep of every joint: states the policy reacts to
-        frame, *_ = env.step(np.r_[frame["obs.joint_pos"] + 0.05 * np.sin(0.2 * t), 0.0].astype(np.float32))
-        out.append(frame)
-    env.close()
-    return out
-
-
-def test_evaluation_executes_base_plus_a_bounded_correction(base_and_residual: tuple[Path, Path, Path]) -> None:
+def test_evaluation_executes_base_plus_a_bounded_correction(base_and_residual: tuple[Path, Path, Path],
+                                                           reach_sweep: list[dict[str, np.ndarray]]) -> None:
     base_dir, out, _ = base_and_residual
     base, fine = ckpt.load_bundle(base_dir), ckpt.load_bundle(out)
     assert base.residual is None and fine.residual is not None
-    frames = _frames()
+    frames = reach_sweep
     a, b = base.actor(), fine.actor()
     a.reset(0), b.reset(0)
     for frame in frames:
@@ -120,7 +110,7 @@ def test_bad_options_fail_in_one_line(base_and_residual: tuple[Path, Path], one_
     one_line_error(["irl", "train", "--algo", "ppo", "--init", base, "--out", out], "--init", "ppo")
     one_line_error(["irl", "train", str(base_and_residual[2]), "--algo", "gail", "--init", base, "--inputs", "sa",
                     "--out", out], "--init", "state-only")
-    one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--task", "pick", "--out", out], "base run")
+    one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--task", "pick", "--out", out], "imitation run")
     one_line_error(["irl", "train", "--algo", "residual", "--init", base, "--scale", "2", "--out", out], "--scale")
     one_line_error(["irl", "train", "--algo", "residual", "--init", str(tmp_path / "nothing"), "--out", out], "nothing")
 
