@@ -18,6 +18,8 @@ import numpy as np
 from demo.sim.geometry import down_quat, nearest_symmetric, quat_angle, quat_to_mat, yaw_of
 
 if TYPE_CHECKING:
+    import mujoco
+
     from demo.sim.env import Env
     from demo.sim.task import Expert
 
@@ -72,6 +74,18 @@ class BoxState:
     quat: np.ndarray  # wxyz, base frame
     half: float  # half edge (m)
     geom_mask: np.ndarray  # boolean over model geoms: the box's geoms
+
+
+def geom_mask(model: "mujoco.MjModel", name: str) -> np.ndarray:
+    """Boolean over the model's geoms, true for the geom ``name`` alone (a box's :attr:`BoxState.geom_mask`)."""
+    mask = np.zeros(model.ngeom, dtype=bool)
+    mask[model.geom(name).id] = True
+    return mask
+
+
+def box_states(env: "Env", bodies: Sequence[int], masks: Sequence[np.ndarray], half: float) -> list[BoxState]:
+    """The boxes ``bodies`` (ids, with their geom masks and half edge ``half`` in m) as they are now."""
+    return [BoxState(*env.body_pose(body), half, mask) for body, mask in zip(bodies, masks)]
 
 
 def box_yaw(quat: np.ndarray) -> float:

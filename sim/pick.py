@@ -26,7 +26,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.sim.geometry import canonical_f32, down_quat, yaw_of
-from demo.sim.grasp import BoxState, approach_and_grasp
+from demo.sim.grasp import BoxState, approach_and_grasp, geom_mask
 from demo.sim.scene import BaseFrame, add_box_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
 from demo.store import FeatureSpec
@@ -102,11 +102,7 @@ class Pick(Task):
         m = env.model
         self.bodies = [m.body(name).id for name in self.names]
         self.joints = [m.joint(f"{name}_joint").id for name in self.names]
-        self.masks = []
-        for name in self.names:
-            mask = np.zeros(m.ngeom, dtype=bool)
-            mask[m.geom(name).id] = True
-            self.masks.append(mask)
+        self.masks = [geom_mask(m, name) for name in self.names]
 
     @property
     def body(self) -> int:

@@ -54,7 +54,7 @@ import numpy as np
 
 from demo.errors import DemoError
 from demo.sim.geometry import canonical, quat_to_mat, yaw_of
-from demo.sim.grasp import BoxState, approach_and_grasp, box_yaw, carry_and_place, in_hand
+from demo.sim.grasp import BoxState, approach_and_grasp, box_states, box_yaw, carry_and_place, geom_mask, in_hand
 from demo.sim.scene import BaseFrame, add_box_body, add_marker_geom, add_mocap_body
 from demo.sim.task import Expert, ExpertParams, Task, place_free_body
 from demo.store import FeatureSpec
@@ -196,11 +196,7 @@ class Stack(Task):
         m = env.model
         self.bodies = [m.body(f"cube{i}").id for i in range(self.n)]
         self.joints = [m.joint(f"cube{i}_joint").id for i in range(self.n)]
-        self.masks = []
-        for i in range(self.n):
-            mask = np.zeros(m.ngeom, dtype=bool)
-            mask[m.geom(f"cube{i}").id] = True
-            self.masks.append(mask)
+        self.masks = [geom_mask(m, f"cube{i}") for i in range(self.n)]
         self.mocap = int(m.body_mocapid[m.body("pad").id])
 
     def reset(self, env: "Env", rng: np.random.Generator) -> None:
@@ -256,11 +252,7 @@ class Stack(Task):
         return env.mocap_pose(self.mocap)[0]
 
     def boxes(self, env: "Env") -> list[BoxState]:
-        out = []
-        for b, mask in zip(self.bodies, self.masks):
-            pos, quat = env.body_pose(b)
-            out.append(BoxState(pos, quat, self.size / 2, mask))
-        return out
+        return box_states(env, self.bodies, self.masks, self.size / 2)
 
     def levels_done(self, env: "Env", boxes: list[BoxState], pad: np.ndarray, xy_tol: float = 0.017, z_tol: float = 0.008) -> int:
         """How many cubes, from the bottom, rest at their level on the pad."""
@@ -284,27 +276,15 @@ class Stack(Task):
         }
 
     def observe(self, env: "Env", out: dict[str, np.ndarray]) -> None:
-        pos = np.empty((self.n, 3), dtype=np.float32)
-        quat = np.empty((self.n, 4), dtype=np.float32)
-        in_ee = np.empty((self.n, 3), dtype=np.float32)
-        yaw4 = np.empty((self.n, 2), dtype=np.float32)
-        to_place = np.empty((self.n, 3), dtype=np.float32)
-        ee_pos, ee_quat = env.ee_pose()
-        ee_rot, ee_yaw = quat_to_mat(ee_quat), yaw_of(ee_quat)
+        pos, quat, in_ee, yaw4 = cube_features(env, self.bodies)
         pad = self.goal(env)
-        for i, b in enumerate(self.bodies):
-            p, q = env.body_pose(b)
-            pos[i], quat[i] = p, canonical(q)
-            in_ee[i] = NEAR * np.tanh(ee_rot.T @ (p - ee_pos) / NEAR)
-            d = 4.0 * (box_yaw(q) - ee_yaw)
-            yaw4[i] = math.sin(d), math.cos(d)
-            to_place[i] = NEAR * np.tanh((p - np.array([pad[0], pad[1], (i + 0.5) * self.size])) / NEAR)
-        out["obs.object_pos"] = pos
+        places = np.array([[pad[0], pad[1], (i + 0.5) * self.size] for i in range(self.n)])
+        out["obs.object_pos"] = pos.astype(np.float32)
         out["obs.object_quat"] = quat
         out["obs.goal_pos"] = pad.astype(np.float32)
         out["obs.object_in_ee"] = in_ee
         out["obs.object_yaw4"] = yaw4
-        out["obs.object_to_place"] = to_place
+        out["obs.object_to_place"] = (NEAR * np.tanh((pos - places) / NEAR)).astype(np.float32)
 
     def success(self, env: "Env") -> bool:
         if self.repeat > 1 and int(env.data.userdata[DONE_SLOT]) < self.repeat - 1:
@@ -315,3 +295,21 @@ class Stack(Task):
         """Every cube at its level on the pad and the gripper open."""
         done = self.levels_done(env, self.boxes(env), self.goal(env), xy_tol=0.02, z_tol=0.01)
         return done == self.n and env.gripper_closedness() < 0.5
+
+
+def cube_features(env: "Env", bodies: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per cube (base frame): centre ``[N,3]`` (m, float64), and as float32 its orientation ``[N,4]`` (wxyz, w >= 0),
+    centre in the EE frame saturated to +-:data:`NEAR` ``[N,3]`` (m), sin and cos of 4 x its yaw relative to the EE's
+    ``[N,2]``."""
+    n = len(bodies)
+    pos, quat = np.empty((n, 3)), np.empty((n, 4), np.float32)
+    in_ee, yaw4 = np.empty((n, 3), np.float32), np.empty((n, 2), np.float32)
+    ee_pos, ee_quat = env.ee_pose()
+    ee_rot, ee_yaw = quat_to_mat(ee_quat), yaw_of(ee_quat)
+    for i, body in enumerate(bodies):
+        p, q = env.body_pose(body)
+        pos[i], quat[i] = p, canonical(q)
+        in_ee[i] = NEAR * np.tanh(ee_rot.T @ (p - ee_pos) / NEAR)
+        d = 4.0 * (box_yaw(q) - ee_yaw)
+        yaw4[i] = math.sin(d), math.cos(d)
+    return pos, quat, in_ee, yaw4

@@ -17,7 +17,7 @@ def pick():
 
 
 def test_task_names():
-    assert TASK_NAMES == ("reach", "pick", "push", "avoid", "stack")
+    assert TASK_NAMES == ("reach", "pick", "push", "avoid", "stack", "place")
 
 
 @pytest.mark.parametrize("task,opts", [("reach", {}), ("pick", {}), ("push", {}), ("avoid", {}), ("stack", {"blocks": 3})])
