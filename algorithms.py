@@ -15,7 +15,8 @@ Each algorithm's hyperparameters and their defaults live in its configuration da
 ==================  ==============  =======================================================
 name                learns from     configuration / trainer
 ==================  ==============  =======================================================
-bc, diffusion, act  a store         :class:`TrainConfig` / :func:`demo.imitation.bc.train`
+bc, diffusion, act, a store         :class:`TrainConfig` / :func:`demo.imitation.bc.train`
+flow, transformer
 dagger, safedagger, a store and the :class:`DaggerConfig` / :func:`demo.imitation.dagger.train_dagger`
 aggrevate, dart,    task's expert   (the member's own options: ``--algo-opt``)
 perturb
@@ -77,6 +78,8 @@ ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (
               named_by="algo"),
     Algorithm("act", TRAIN, TrainConfig, "demo.imitation.bc:train",
               "ACT: transformer + CVAE, action chunks, temporal ensembling", named_by="algo"),
+    Algorithm("transformer", TRAIN, TrainConfig, "demo.imitation.bc:train",
+              "a transformer over proprioception, camera and instruction tokens, action chunks", named_by="algo"),
     Algorithm("ppo", IRL, PPOConfig, "demo.rl.ppo:train", "PPO on the dense task reward (or a learned one)"),
     Algorithm("residual", IRL, ResidualConfig, "demo.rl.residual:train",
               "residual RL: PPO on a bounded correction of a frozen imitation run (--init RUN)"),

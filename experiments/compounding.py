@@ -92,6 +92,12 @@ Every method executes the gripper as a binary open/closed command (``binary_grip
 0.07 leaves the fingers slightly closed, which the policy then reads as "closing, hold still"
 (BC on N = 1 at DAgger's label budget: 30% without it, 81% with it, 100 episodes each).
 
+**Chunked learners** (``chunked_learners``, ``--chunked-learners``): every family member trains BC's chunked
+learner (``chunk`` steps, temporally ensembled) instead of the single-step one. At the defaults (K = 1..4):
+HG-DAgger 64, 20, 11, 1% against chunked BC 75, 26, 11, 0% and single-step BC 88, 55, 43, 42%: the ensembled
+action lags the expert's, the 0.03 rad gate fires at nearly every step and the expert drives almost every
+rollout, so the budget buys BC's data again (docs/results.md, "With chunked learners").
+
 Run with ``demo bench compounding``; it writes one JSON (every number, each method's labels and
 seconds, the fits, the exact configuration) and a PNG (success with 95% intervals against horizon).
 Each method's run directory is kept under ``out`` for ``demo eval`` and inspection; a rerun reuses

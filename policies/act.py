@@ -69,17 +69,25 @@ class ACTConfig:
     latent: str = "commit"
 
     def __post_init__(self) -> None:
-        if min(self.d_model, self.heads, self.encoder_layers, self.decoder_layers, self.vae_layers,
-               self.feedforward, self.latent_dim) < 1:
-            raise ValueError("d_model, heads, layers, feedforward and latent_dim must be positive")
-        if self.d_model % self.heads:
-            raise ValueError(f"d_model ({self.d_model}) must be divisible by heads ({self.heads})")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must lie in [0, 1), got {self.dropout}")
+        check_transformer(self.d_model, self.heads, self.dropout, encoder_layers=self.encoder_layers,
+                          decoder_layers=self.decoder_layers, vae_layers=self.vae_layers, feedforward=self.feedforward,
+                          latent_dim=self.latent_dim)
         if self.kl_weight < 0:
             raise ValueError(f"kl_weight must be >= 0, got {self.kl_weight}")
         if self.latent not in LATENTS:
             raise ValueError(f"latent must be one of {', '.join(LATENTS)}, got {self.latent!r}")
+
+
+def check_transformer(d_model: int, heads: int, dropout: float, **sizes: int) -> None:
+    """A ValueError for a transformer's sizes that cannot build: every size and ``heads`` positive, ``d_model`` a
+    multiple of ``heads``, ``dropout`` in [0, 1)."""
+    small = [name for name, value in {"d_model": d_model, "heads": heads, **sizes}.items() if value < 1]
+    if small:
+        raise ValueError(f"{', '.join(small)} must be positive")
+    if d_model % heads:
+        raise ValueError(f"d_model ({d_model}) must be divisible by heads ({heads})")
+    if not 0.0 <= dropout < 1.0:
+        raise ValueError(f"dropout must lie in [0, 1), got {dropout}")
 
 
 def _encoder(c: ACTConfig, layers: int) -> nn.TransformerEncoder:

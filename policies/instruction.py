@@ -42,6 +42,7 @@ from demo.policies.policy import Policy, PolicySpec, parse_flag
 
 INSTRUCTION = "instruction"  # the token ids' entry in an observation dict
 CONDITION = "condition"  # the instruction's vector, for a policy that takes it by FiLM (Policy.takes_condition)
+TEXT_TOKENS, TEXT_PAD = "text_tokens", "text_pad"  # its per-word outputs and padding, for a policy that takes_tokens
 PAD, UNKNOWN = "[PAD]", "[UNK]"  # token ids 0 and 1
 
 
@@ -158,28 +159,36 @@ class TextEncoder(nn.Module):
         self.norm = nn.LayerNorm(config.dim)
 
     def forward(self, tokens: torch.Tensor) -> torch.Tensor:
+        x, pad = self.per_token(tokens)
+        keep = (~pad).unsqueeze(-1).to(x.dtype)
+        return self.norm((x * keep).sum(dim=1) / keep.sum(dim=1).clamp(min=1.0))
+
+    def per_token(self, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Token ids ``[B, L]`` -> each token's output ``[B, L, dim]`` and the padding ``[B, L]`` (True: ignore it;
+        a blanked instruction keeps its padding, which is then all it has to attend to)."""
         pad = tokens == 0
         x = self.embed(tokens) + self.position[: tokens.shape[1]]
         empty = pad.all(dim=1, keepdim=True)  # no token at all (a blanked instruction): attend to the padding
         pad = pad & ~empty
         for layer in self.layers:
             x = layer(x, src_key_padding_mask=pad)
-        keep = (~pad).unsqueeze(-1).to(x.dtype)
-        return self.norm((x * keep).sum(dim=1) / keep.sum(dim=1).clamp(min=1.0))
+        return x, pad
 
 
 class InstructedPolicy(Policy):
     """A wrapped policy told the instruction's vector: by FiLM in its hidden layers where it takes a
     condition (``film``: BC's MLP on state), else appended to every frame's low-dim observation, and with
-    ``film_images`` by FiLM in its image encoders as well."""
+    ``film_images`` by FiLM in its image encoders as well; a policy that reads tokens (``tokens``: the
+    transformer) is given the encoder's per-word outputs instead."""
 
     def __init__(self, spec: PolicySpec, config: Any, text: TextConfig, build: Callable[[PolicySpec], Policy],
-                 film: bool = False, film_images: bool = False):
+                 film: bool = False, film_images: bool = False, tokens: bool = False):
         super().__init__(spec, config)
         self.text_config = text
-        self.film, self.film_images = film, film_images
+        self.film, self.film_images, self.tokens = film, film_images, tokens
         self.text = TextEncoder(spec.vocab, spec.max_tokens, text)
-        inner: dict[str, int] = dict(cond_dim=text.dim) if film else dict(obs_dim=spec.obs_dim + text.dim)
+        inner: dict[str, int] = (dict(text_dim=text.dim) if tokens else dict(cond_dim=text.dim) if film
+                                 else dict(obs_dim=spec.obs_dim + text.dim))
         if film_images:  # the image encoders take it too (demo.policies.encoders.CameraEncoder)
             inner["cond_dim"] = text.dim
         self.inner = build(dataclasses.replace(spec, vocab=0, max_tokens=0, **inner))
@@ -192,6 +201,10 @@ class InstructedPolicy(Policy):
         # A batch holds a few distinct instructions (one per task): each is encoded once, the same numbers
         # and gradients as encoding every row (4x faster training steps on MT10's ten).
         unique, row = torch.unique(obs[INSTRUCTION], dim=0, return_inverse=True)
+        if self.tokens:  # the words as tokens, beside the observation (and its cameras)
+            x, pad = self.text.per_token(unique)
+            return {**{k: v for k, v in obs.items() if k != INSTRUCTION}, TEXT_TOKENS: x[row].to(state.dtype),
+                    TEXT_PAD: pad[row]}
         words = self.text(unique)[row].to(state.dtype)
         if self.film:
             return {STATE: state, CONDITION: words}

@@ -52,9 +52,15 @@ class PolicySpec:
     # A conditioning vector per sample (the instruction's) that a policy taking one (``takes_condition``)
     # modulates its hidden layers with (FiLM); 0 = none.
     cond_dim: int = 0
+    # Set by a wrapper for the policy inside it (never recorded; the wrapper derives them again):
+    # how one frame's vector splits into tokens (the low-dim part, then each camera's features; () = one
+    # token), and the width of the instruction's per-word tokens a policy that ``takes_tokens`` reads (0 = none).
+    token_dims: tuple[int, ...] = ()
+    text_dim: int = 0
 
     def to_json(self) -> dict[str, Any]:
-        d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items() if k != "images"}
+        d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items()
+                             if k not in ("images", "token_dims", "text_dim")}
         if self.images:  # recorded only when set: state runs read as before
             d["images"] = [list(i) for i in self.images]
         if not self.vocab:
@@ -77,6 +83,9 @@ class Policy(nn.Module):
     # Whether the policy takes a conditioning vector (``spec.cond_dim``) beside its observation, as
     # ``{"state": obs, "condition": vector}`` (demo.policies.instruction); else it is appended to the observation.
     takes_condition: ClassVar[bool] = False
+    # Whether the policy reads an instruction as its per-word tokens (``spec.text_dim`` wide), as
+    # ``{"state": obs, TEXT_TOKENS: [B, L, text_dim], TEXT_PAD: [B, L]}`` (demo.policies.instruction), rather than as one vector.
+    takes_tokens: ClassVar[bool] = False
 
     def __init__(self, spec: PolicySpec, config: Any):
         super().__init__()
@@ -111,6 +120,7 @@ POLICY_MODULES: dict[str, str] = {
     "diffusion": "demo.policies.diffusion",
     "flow": "demo.policies.flow",
     "act": "demo.policies.act",
+    "transformer": "demo.policies.transformer",
     "ppo": "demo.policies.gaussian",  # the Gaussian policy of PPO, GAIL, AIRL and linear IRL runs
 }
 
@@ -167,7 +177,7 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
         text = text_config(text)
         film = cls.takes_condition and not spec.images and text.film
         return InstructedPolicy(spec, config, text, lambda inner: build_policy(name, inner, config, encoder), film,
-                                bool(spec.images) and text.film_images)
+                                bool(spec.images) and text.film_images, cls.takes_tokens)
     if spec.images:
         from demo.policies.visuomotor import VisuomotorPolicy, encoder_config  # deferred: cycle (visuomotor imports this module)
 

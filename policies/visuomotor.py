@@ -21,7 +21,7 @@ import torch
 from torch import nn
 
 from demo.policies.encoders import CameraEncoder, EncoderConfig
-from demo.policies.instruction import CONDITION
+from demo.policies.instruction import CONDITION, TEXT_PAD, TEXT_TOKENS
 from demo.policies.observation import STATE, IMAGE_PREFIX
 from demo.policies.policy import Policy, PolicySpec
 
@@ -48,7 +48,7 @@ class VisuomotorPolicy(Policy):
         self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder, spec.cond_dim)
                                       for key, h, w in spec.images})
         head_spec = dataclasses.replace(spec, obs_dim=spec.obs_dim + len(self.keys) * encoder.features, images=(),
-                                        cond_dim=0)
+                                        cond_dim=0, token_dims=(spec.obs_dim, *[encoder.features] * len(self.keys)))
         self.head = head(head_spec, config)
 
     def encode(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -70,12 +70,20 @@ class VisuomotorPolicy(Policy):
                  for key, encoder in zip(self.keys, self.cameras.values())]
         return torch.cat([state, *parts], dim=-1)
 
+    def head_input(self, obs: dict[str, torch.Tensor]) -> torch.Tensor | dict[str, torch.Tensor]:
+        """What the wrapped policy reads: :meth:`encode`'s vector, with an instruction's tokens beside it when
+        the wrapped policy reads tokens (:mod:`demo.policies.instruction`)."""
+        fused = self.encode(obs)
+        if TEXT_TOKENS in obs:
+            return {STATE: fused, TEXT_TOKENS: obs[TEXT_TOKENS], TEXT_PAD: obs[TEXT_PAD]}
+        return fused
+
     def loss(self, obs: dict[str, torch.Tensor], action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
-        return self.head.loss(self.encode(obs), action, action_pad)
+        return self.head.loss(self.head_input(obs), action, action_pad)
 
     @torch.no_grad()
     def predict(self, obs: dict[str, torch.Tensor], generator: torch.Generator | None = None) -> torch.Tensor:
-        return self.head.predict(self.encode(obs), generator=generator)
+        return self.head.predict(self.head_input(obs), generator=generator)
 
 
 def encoder_record(policy: Policy) -> dict[str, Any] | None:

@@ -72,7 +72,7 @@ class PlaceExpert(Expert):
         boxes, pads = task.boxes(env), task.pads(env)
         ee = env.ee_pose()
         ee_pos, ee_quat = ee
-        cube, pad = task.goal(env)
+        cube, pad = task.pair(env)
         held = next((i for i, b in enumerate(boxes) if in_hand(env, b, ee)[1]), None)
 
         def top_of_others(skip: int) -> float:
@@ -149,10 +149,14 @@ class Place(Task):
         names = list(COLOURS)
         self.instruction = templates[int(rng.integers(len(templates)))].format(cube=names[cube], pad=names[pad])
 
-    def goal(self, env: "Env") -> tuple[int, int]:
+    def pair(self, env: "Env") -> tuple[int, int]:
         """The episode's (cube, pad) colour indices, kept in the simulator state (``data.userdata``)."""
         cube, pad = env.data.userdata[GOAL_SLOT : GOAL_SLOT + 2]
         return int(cube), int(pad)
+
+    def goal(self, env: "Env") -> np.ndarray:
+        """The named pad's centre on the table (base frame, m), as the other tasks' goal positions are."""
+        return self.pads(env)[self.pair(env)[1]]
 
     def boxes(self, env: "Env") -> list[BoxState]:
         return box_states(env, self.bodies, self.masks, self.half)
@@ -191,5 +195,5 @@ class Place(Task):
         out["obs.object_to_pad"] = to_pad.reshape(9, 3).astype(np.float32)
 
     def success(self, env: "Env") -> bool:
-        cube, pad = self.goal(env)
+        cube, pad = self.pair(env)
         return self.in_place(self.boxes(env)[cube], self.pads(env)[pad]) and env.gripper_closedness() < 0.5

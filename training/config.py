@@ -87,6 +87,8 @@ POLICY_DEFAULTS: dict[str, dict[str, Any]] = {
         "lr": 1e-3,
         "steps": 10000,
     },
+    # the token transformer (demo.policies.transformer): ACT's execution and training settings, its decoder
+    "transformer": {"chunk": 16, "execute": 1, "ensemble": True, "batch_size": 64, "lr": 1e-3, "steps": 10000},
 }
 
 # BC's sampling heads over BC's settings. GMM (winner-takes-all, the committed draw) on avoid (200

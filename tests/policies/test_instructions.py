@@ -284,3 +284,38 @@ def test_a_pretrained_text_encoder_starts_another_run(dots: Path, tmp_path: Path
     assert main(["train", str(dots / "dots.zarr"), "--out", str(plain), "--no-instructions", *common]) == 0
     one_line_error(["train", str(dots / "dots.zarr"), "--out", str(tmp_path / "bad2"), "--text-opt", f"init={plain}",
                     *common], str(plain), "not an instruction-conditioned run")
+
+
+@pytest.mark.slow
+def test_a_transformer_reads_the_words_as_tokens(dots: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--algo transformer: the instruction's per-word tokens beside the observation's (and each camera's) tokens;
+    it follows the words as the FiLM MLP does, and a run evaluates like any other."""
+    import torch
+
+    from demo.policies.instruction import INSTRUCTION, TEXT_TOKENS
+    from demo.policies.policy import PolicySpec, build_policy
+
+    spec = PolicySpec(5, 2, 2, 4, images=(("obs.image_front", 32, 32), ("obs.image_wrist", 32, 32)), vocab=12,
+                      max_tokens=3)
+    torch.manual_seed(0)
+    policy = build_policy("transformer", spec, {"d_model": 32, "layers": 1, "feedforward": 64},
+                          encoder={"features": 8})
+    inner = policy.inner.head  # the instruction wrapper, the camera encoders, the transformer
+    assert policy.tokens and inner.spec.token_dims == (5, 8, 8) and inner.spec.text_dim == 64
+    assert "token_dims" not in inner.spec.to_json() and "text_dim" not in inner.spec.to_json()
+    images = {k: torch.randint(0, 255, (2, 2, 32, 32, 3), dtype=torch.uint8) for k, _, _ in spec.images}
+    state = torch.randn(1, 2, 5).expand(2, -1, -1)
+    obs = {"state": state, **{k: v[:1].expand(2, -1, -1, -1, -1) for k, v in images.items()},
+           INSTRUCTION: torch.tensor([[2, 3, 0], [4, 5, 6]])}
+    policy.eval()
+    chunks = policy.predict(obs)
+    assert chunks.shape == (2, 4, 2) and not torch.allclose(chunks[0], chunks[1])  # the words alone differ
+    assert TEXT_TOKENS in policy.condition(obs)
+
+    monkeypatch.syspath_prepend(str(dots))
+    out = tmp_path / "transformer"
+    assert train(dots, out, "--algo", "transformer", "--policy-opt", "d_model=32", "--policy-opt", "layers=2",
+                 "--policy-opt", "feedforward=128", "--policy-opt", "dropout=0", "--batch-size", "64") == 0
+    assert load_bundle(out).policy.tokens
+    followed = evaluate(out, tmp_path / "t.json")
+    assert followed["success_rate"] >= 0.9, followed["success_rate"]

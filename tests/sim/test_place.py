@@ -19,7 +19,7 @@ def test_the_expert_puts_the_named_cube_on_the_named_pad(pairs: str) -> None:
     goals = set()
     for seed in range(6):
         r = run_expert(env, seed)
-        cube, pad = env.task.goal(env)
+        cube, pad = env.task.pair(env)
         words = env.instruction.split()
         assert r.success and words[words.index("cube" if "cube" in words else "block") - 1] == NAMES[cube]
         assert words[-2] == NAMES[pad]
@@ -37,7 +37,7 @@ def test_held_out_goals_and_words_leave_the_scene_as_it_was() -> None:
     a.reset(3), b.reset(3)
     for key, value in a.observe().items():
         np.testing.assert_array_equal(value, b.observe()[key], err_msg=key)
-    assert a.task.goal(a) in TRAIN_PAIRS and b.task.goal(b) in HELD_OUT_PAIRS
+    assert a.task.pair(a) in TRAIN_PAIRS and b.task.pair(b) in HELD_OUT_PAIRS
     seen = {t.format(cube=c, pad=p) for t in PHRASINGS["train"] for c in NAMES for p in NAMES}
     assert a.instruction in seen and b.instruction not in seen
     # every colour is in training both as a cube and as a pad
@@ -55,7 +55,7 @@ def test_the_expert_follows_the_named_cube_when_the_cubes_are_swapped() -> None:
 
     def swap(e, t: int) -> None:
         if t == 10:
-            task, (cube, _) = e.task, e.task.goal(e)
+            task, (cube, _) = e.task, e.task.pair(e)
             other = next(i for i in range(3) if i != cube)
             boxes = task.boxes(e)
             a, b = boxes[cube].pos.copy(), boxes[other].pos.copy()

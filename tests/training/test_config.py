@@ -31,8 +31,8 @@ def test_a_shorter_chunk_shortens_execution_unless_given() -> None:
 
 
 def test_unknown_policies_and_fields_are_refused() -> None:
-    with pytest.raises(DemoError, match="unknown policy 'transformer'"):
-        for_policy("transformer")
+    with pytest.raises(DemoError, match="unknown policy 'perceiver'"):
+        for_policy("perceiver")
     with pytest.raises(TypeError, match="no field chunks"):
         for_policy("bc", chunks=4)
 

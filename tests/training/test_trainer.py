@@ -64,7 +64,7 @@ def test_bad_options_fail_before_training(data: Path, tmp_path: Path, tiny_bc_co
     with pytest.raises(DemoError, match="not a low-dimensional"):
         train(config(data, tmp_path / "r", obs_keys=("obs.joint_pos", "action")))
     with pytest.raises(DemoError, match="unknown policy"):
-        train(config(data, tmp_path / "r", algo="transformer"))
+        train(config(data, tmp_path / "r", algo="perceiver"))
     assert not (tmp_path / "r").exists()
 
 

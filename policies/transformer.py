@@ -1,0 +1,106 @@
+"""A transformer over tokens (RT-1's and the VLAs' layout at a size a CPU trains): ``demo train DATA --algo transformer``.
+
+Reads top to bottom:
+
+1. :class:`TransformerConfig`: the network's hyperparameters (``--policy-opt name=value``).
+2. :class:`TransformerPolicy`: every input is a sequence of tokens of one width, ``d_model``:
+
+   - *proprioception*: one token per history frame from the low-dim vector (a linear map);
+   - *cameras*: one token per camera per frame from its encoder's features (a policy from cameras sits
+     behind :class:`demo.policies.visuomotor.VisuomotorPolicy`, whose per-camera features arrive in the
+     frame's vector; ``spec.token_dims`` says where each camera's part starts), each camera its own map;
+   - *instruction*: one token per word, the text encoder's per-token outputs
+     (:class:`demo.policies.instruction.TextEncoder`, trained with the policy end to end), padding masked;
+
+   each with a learned embedding of its kind (which camera, proprioception, words) and of its frame. A
+   transformer encoder mixes them; a transformer decoder's ``horizon`` learned queries attend to the result
+   and become the chunk ``[H, A]`` (ACT's decoder without the CVAE: one chunk per observation).
+3. :meth:`TransformerPolicy.loss`: the chunk's squared error on the steps before the episode end.
+
+Execution is the shared executor's (:mod:`demo.policies.actor`): a query every step, temporally ensembled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from demo.policies.act import check_transformer
+from demo.policies.heads import masked_mean
+from demo.policies.instruction import TEXT_PAD, TEXT_TOKENS
+from demo.policies.observation import STATE
+from demo.policies.policy import Policy, PolicySpec, register_policy
+
+
+# ================================================================================== 1. config
+@dataclass
+class TransformerConfig:
+    """The token transformer's hyperparameters (``--policy-opt name=value``)."""
+
+    d_model: int = 128  # token width
+    heads: int = 4
+    layers: int = 3  # encoder layers over every token
+    decoder_layers: int = 1  # decoder layers of the chunk queries (ACT's: 1)
+    feedforward: int = 512
+    dropout: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_transformer(self.d_model, self.heads, self.dropout, layers=self.layers,
+                          decoder_layers=self.decoder_layers, feedforward=self.feedforward)
+
+
+# ================================================================================== 2. the network
+@register_policy("transformer")
+class TransformerPolicy(Policy):
+    Config = TransformerConfig
+    takes_tokens = True
+
+    def __init__(self, spec: PolicySpec, config: TransformerConfig):
+        super().__init__(spec, config)
+        c, d = config, config.d_model
+        self.sizes = list(spec.token_dims or (spec.obs_dim,))  # proprioception, then each camera's features
+        if sum(self.sizes) != spec.obs_dim:
+            raise ValueError(f"token sizes {self.sizes} do not add up to the observation's {spec.obs_dim} entries")
+        self.frame_in = nn.ModuleList(nn.Linear(n, d) for n in self.sizes)
+        self.kind = nn.Parameter(torch.zeros(len(self.sizes) + 1, d))  # each frame token's kind; the last: words
+        self.frame = nn.Parameter(torch.zeros(spec.n_obs, 1, d))
+        self.text_in = nn.Linear(spec.text_dim, d) if spec.text_dim else None
+        layer = nn.TransformerEncoderLayer(d, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
+        self.encoder = nn.TransformerEncoder(layer, c.layers, norm=nn.LayerNorm(d), enable_nested_tensor=False)
+        self.queries = nn.Parameter(torch.zeros(1, spec.horizon, d))
+        layer = nn.TransformerDecoderLayer(d, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
+        self.decoder = nn.TransformerDecoder(layer, c.decoder_layers, norm=nn.LayerNorm(d))
+        self.action_out = nn.Linear(d, spec.action_dim)
+        for p in (self.kind, self.frame, self.queries):
+            nn.init.normal_(p, std=0.02)
+
+    def tokens(self, obs: torch.Tensor | dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Every input token ``[B, T, d_model]`` and the padding mask ``[B, T]`` (None without words)."""
+        state = obs[STATE] if isinstance(obs, dict) else obs  # [B, n_obs, obs_dim]
+        parts = torch.split(state, self.sizes, dim=-1)
+        frames = torch.stack([embed(part) + self.kind[k] for k, (embed, part) in enumerate(zip(self.frame_in, parts))],
+                             dim=2) + self.frame  # [B, n_obs, kinds, d]
+        x = frames.flatten(1, 2)
+        if self.text_in is None:
+            return x, None
+        words = self.text_in(obs[TEXT_TOKENS].to(x.dtype)) + self.kind[-1]  # type: ignore[index]
+        pad = torch.cat([torch.zeros(x.shape[:2], dtype=torch.bool, device=x.device), obs[TEXT_PAD]], dim=1)  # type: ignore[index]
+        return torch.cat([x, words], dim=1), pad
+
+    def forward(self, obs: torch.Tensor | dict[str, torch.Tensor]) -> torch.Tensor:
+        """The normalised chunk ``[B, H, A]``."""
+        x, pad = self.tokens(obs)
+        memory = self.encoder(x, src_key_padding_mask=pad)
+        queries = self.queries.expand(x.shape[0], -1, -1)
+        return self.action_out(self.decoder(queries, memory, memory_key_padding_mask=pad))
+
+    # ============================================================================== 3. loss
+    def loss(self, obs: torch.Tensor | dict[str, torch.Tensor], action: torch.Tensor,
+             action_pad: torch.Tensor) -> torch.Tensor:
+        return masked_mean((self(obs) - action).square(), ~action_pad)
+
+    @torch.no_grad()
+    def predict(self, obs: torch.Tensor | dict[str, torch.Tensor], generator: torch.Generator | None = None) -> torch.Tensor:
+        return self(obs)
