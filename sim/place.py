@@ -7,9 +7,9 @@ nothing in the observation says which cube or which pad (:attr:`Place.instructio
 cube rests on the named pad (centre within 2 cm of the pad's axis, 1 cm of its resting height) and the
 gripper is open; the other cubes may lie anywhere.
 
-``pairs`` chooses the goals: ``train`` draws from the six pairs of :data:`TRAIN_PAIRS`, ``held_out`` from the
-three others (:data:`HELD_OUT_PAIRS`: each cube with one pad it is never sent to in training, so every
-colour is seen as a cube and as a pad, never those three together), ``all`` from the nine. ``phrasing``
+``pairs`` chooses the goals: ``train`` draws from the seven pairs of :data:`TRAIN_PAIRS`, ``held_out`` from the
+two others (:data:`HELD_OUT_PAIRS`: the red cube on the green pad and the green cube on the red pad; every
+colour is seen as a cube and as a pad in training, red and green never together), ``all`` from the nine. ``phrasing``
 words the instruction with the templates training episodes use (``train``) or with others
 (``held_out``: paraphrases no training episode used). Both change only the goal and the words, so a
 policy trained on ``pairs=train`` evaluates on ``pairs=held_out``.
@@ -48,10 +48,13 @@ COLOURS = {"red": (0.85, 0.2, 0.2), "green": (0.2, 0.7, 0.25), "blue": (0.2, 0.3
 REGION = ((0.38, 0.64), (-0.25, 0.25))  # x, y ranges (m, base frame) of the cubes and pads
 SPACING = 0.09  # m between any two of them: the open gripper (8 cm) fits between two cubes
 GOAL_SLOT = 0  # data.userdata[0:2]: the episode's (cube, pad) colour indices
-# (cube, pad) colour indices. Held out: cube i with pad i + 2 (mod 3), so each colour stays in training as a
-# cube (with two pads) and as a pad (with two cubes).
+# (cube, pad) colour indices. Held out: red and green together, in either role. Every colour stays in training
+# as a cube and as a pad, and training holds both orders of the other two colour pairs (red-blue, green-blue),
+# so the words' roles must be learnt: holding out one order of each pair instead (cube i with pad i + 2) leaves
+# every held-out pair the reverse of a training one, which a policy deaf to word order mistakes for it
+# (FiLM BC, 2,000 demos: 57/100 on the training pairs, 0/100 on those).
 ALL_PAIRS = tuple((c, p) for c in range(3) for p in range(3))
-HELD_OUT_PAIRS = tuple((c, (c + 2) % 3) for c in range(3))
+HELD_OUT_PAIRS = ((0, 1), (1, 0))
 TRAIN_PAIRS = tuple(pair for pair in ALL_PAIRS if pair not in HELD_OUT_PAIRS)
 PAIRS = {"train": TRAIN_PAIRS, "held_out": HELD_OUT_PAIRS, "all": ALL_PAIRS}
 PHRASINGS = {

@@ -27,7 +27,7 @@ def test_the_expert_puts_the_named_cube_on_the_named_pad(pairs: str) -> None:
         assert np.hypot(*(obs["obs.object_pos"][cube, :2] - obs["obs.pad_pos"][pad, :2])) < 0.02
         assert (cube, pad) in (TRAIN_PAIRS if pairs == "train" else HELD_OUT_PAIRS)
         goals.add((cube, pad))
-    assert len(goals) >= 3
+    assert len(goals) >= 2
     env.close()
 
 
@@ -40,8 +40,9 @@ def test_held_out_goals_and_words_leave_the_scene_as_it_was() -> None:
     assert a.task.pair(a) in TRAIN_PAIRS and b.task.pair(b) in HELD_OUT_PAIRS
     seen = {t.format(cube=c, pad=p) for t in PHRASINGS["train"] for c in NAMES for p in NAMES}
     assert a.instruction in seen and b.instruction not in seen
-    # every colour is in training both as a cube and as a pad
+    # every colour is in training both as a cube and as a pad; red and green never together
     assert {c for c, _ in TRAIN_PAIRS} == {p for _, p in TRAIN_PAIRS} == {0, 1, 2}
+    assert not {(0, 1), (1, 0)} & set(TRAIN_PAIRS) and {(0, 2), (2, 0), (1, 2), (2, 1)} <= set(TRAIN_PAIRS)
     a.close(), b.close()
 
 

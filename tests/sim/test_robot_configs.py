@@ -204,7 +204,7 @@ def test_robot_check_on_the_builtin_arm(tmp_path, capsys):
                  "--json", "-"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["dof"] == 7 and report["ok"] and report["joints"][3]["upper"] == pytest.approx(-0.0698)
-    assert set(report["ik"]) == {"reach", "pick", "push", "avoid", "stack"}
+    assert set(report["ik"]) == {"reach", "pick", "push", "avoid", "stack", "place"}
     assert all(r["rate"] == 1.0 for r in report["ik"].values()) and report["gripper_closes"] > 0.9
     assert report["experts"]["pick"] == {"successes": 2, "episodes": 2, "rate": 1.0}
     from PIL import Image
