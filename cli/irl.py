@@ -115,6 +115,7 @@ def train(
                    out=str(out), reward=reward, action=action, obs_keys=_keys(obs_keys), seed=seed,
                    total_steps=defaults.total_steps if steps is None else steps, num_envs=envs,
                    num_steps=defaults.num_steps if rollout is None else rollout, init_log_std=defaults.init_log_std,
+                   target_kl=defaults.target_kl,
                    lr=lr, ent_coef=ent_coef,
                    eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
     if algo == "ppo":

@@ -72,7 +72,7 @@ def test_the_run_is_the_bc_run_with_new_weights(base_and_finetuned: tuple[Path, 
     base, out, _ = base_and_finetuned
     run, base_run = json.loads((out / "run.json").read_text()), json.loads((base / "run.json").read_text())
     assert run["algo"] == "finetune" and run["policy"] == base_run["policy"] and "residual" not in run
-    assert run["init"]["run"] == str(base.resolve()) and run["finetune"]["policy_lr"] == 3e-6
+    assert run["init"]["run"] == str(base.resolve()) and run["finetune"]["policy_lr"] == 1e-5 and FinetuneConfig().rl.target_kl == 0.02
     assert run["demonstrations"]["episodes"] == 3
     saved, original = load_file(str(out / ckpt.POLICY_FILE)), load_file(str(base / ckpt.POLICY_FILE))
     assert saved.keys() == original.keys()
