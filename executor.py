@@ -300,7 +300,8 @@ def _next_in_order(done: dict[int, Any], committed: int) -> list[Any]:
 
 def _stop(procs: list[Any], pipes: list[Any], politely: bool) -> None:
     """End the workers: after the last job, ask them to (each returns normally, running its exit
-    handlers); after an error or Ctrl-C, terminate them at once (SIGTERM ends a worker without a word)."""
+    handlers); after an error or Ctrl-C, terminate them at once (SIGTERM ends a worker without a word).
+    A worker still there 5 s after its SIGTERM is killed, so that ending never hangs."""
     for proc, pipe in zip(procs, pipes):
         if politely:
             try:
@@ -310,9 +311,12 @@ def _stop(procs: list[Any], pipes: list[Any], politely: bool) -> None:
         else:
             proc.terminate()
     for proc, pipe in zip(procs, pipes):
-        proc.join(timeout=10 if politely else None)
-        if proc.is_alive():
+        proc.join(timeout=10 if politely else 5)
+        if proc.is_alive() and politely:  # asked and still busy: SIGTERM
             proc.terminate()
+            proc.join(timeout=5)
+        if proc.is_alive():  # not ended by SIGTERM (blocked in native code): SIGKILL
+            proc.kill()
             proc.join()
         pipe.close()
 
