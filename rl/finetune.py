@@ -32,7 +32,8 @@ every PPO minibatch step adds ``bc_coef`` times the squared error of ``mu`` ther
 
 **Learning rates**: the network's weights at ``policy_lr`` (1e-5), ``sigma`` and the critic at PPO's
 ``lr``, both annealed; an iteration's epochs stop once the approximate KL passes ``target_kl`` (0.02): every
-weight of the network moves the mean, and PPO's clip alone did not hold it (a KL of 1.2 in one iteration). The monitor, the starting line and the curves are the residual's.
+weight of the network moves the mean, and PPO's clip alone did not hold it (a KL of 1.2 in one iteration).
+The monitor, the starting line and the curves are the residual's.
 
 The run directory is an ordinary run of the base policy with new weights: ``demo eval RUN2`` executes it
 like the BC run it came from.
