@@ -1,14 +1,19 @@
-"""`demo bench suite NAME`: a public benchmark's task set, one BC policy per task, judged in its own environments.
+"""`demo bench suite NAME`: a public benchmark's task set, one policy per task, judged in its own environments.
 
-For every task of the suite (``metaworld-mt10``: Meta-World's MT10, ``metaworld-mt50``: MT50):
+For every task of the suite (``metaworld-mt10``: Meta-World's MT10, ``metaworld-mt50``: MT50, ``aloha``:
+gym-aloha's transfer cube and insertion):
 
-1. collect ``demos`` demonstrations of the benchmark's scripted policy (``demo collect --env
-   metaworld:<task> --expert metaworld``), seeds ``episode_seed(seed, i)``: the expert's own success
-   on them is the ceiling;
-2. train BC on the successful ones: single-step (``chunk`` 1, no ensembling; measured best on Meta-World,
-   whose scripted policies are reactive), ``demo train``'s defaults otherwise;
+1. collect ``demos`` demonstrations of a scripted policy (Meta-World's own, ``demo collect --env
+   metaworld:<task> --expert metaworld``; for gym-aloha, which ships none, ours: ``--env
+   process:aloha_state:<task> --expert demo.collect.aloha:<task>``, :mod:`demo.collect.aloha`), seeds
+   ``episode_seed(seed, i)``: the expert's own success on them is the ceiling;
+2. train the suite's policy on the successful ones. Meta-World: BC, single-step (``chunk`` 1, no
+   ensembling; measured best there, whose scripted policies are reactive), ``demo train``'s defaults
+   otherwise. gym-aloha: ACT from the top camera plus the 14 joint positions (``agent_pos``), the
+   protocol of the ACT paper's simulated tasks, at ``demo train``'s ACT defaults;
 3. evaluate on ``episodes`` episodes whose seeds are disjoint from the demonstrations'
-   (``demo eval``), success by the environment's own ``info["success"]``.
+   (``demo eval``), success by the environment's own signal (Meta-World's ``info["success"]``,
+   gym-aloha's reward 4).
 
 With ``one_policy`` the whole set is collected into one store (``demo collect --env metaworld:MT10``, each
 episode carrying its task's instruction, :func:`demo.sim.metaworld.instruction`) and *one* BC policy trains
@@ -29,7 +34,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -39,9 +44,33 @@ from demo.errors import DemoError
 from demo.figures import pyplot, save_figure
 from demo.sim.foreign import task_name
 from demo.sim.metaworld import task_set
-from demo.training.config import TrainConfig, setting
+from demo.training.config import setting
 
-SUITES = {"metaworld-mt10": ("metaworld", "MT10"), "metaworld-mt50": ("metaworld", "MT50")}
+
+
+@dataclass(frozen=True)
+class Suite:
+    """What differs between the benchmarks: where each task's environment and expert come from, which policy
+    learns them by default, and the published figures the table sets ours beside."""
+
+    adapter: str  # metaworld | aloha
+    task_set: str  # metaworld: the set's name
+    algo: str  # the policy trained per task unless --algo
+    chunk: int | None  # its chunk unless --chunk (None: the policy's own default)
+    episodes: int  # evaluation episodes per task unless --episodes
+    published: dict[str, tuple[float, str]] = field(default_factory=dict)  # task -> (success, where from)
+
+
+ACT_PAPER = "ACT paper (Zhao et al. 2023), 50 scripted demos, 480x640 cameras, 400-step episodes"
+SUITES = {
+    "metaworld-mt10": Suite("metaworld", "MT10", "bc", 1, 50),
+    "metaworld-mt50": Suite("metaworld", "MT50", "bc", 1, 50),
+    "aloha": Suite("aloha", "", "act", None, 100,
+                   {"transfer_cube": (0.90, ACT_PAPER), "insertion": (0.50, ACT_PAPER)}),
+}
+ALOHA_TASKS = ("transfer_cube", "insertion")
+ALOHA_INSTALL = "python -m venv aloha && aloha/bin/pip install gym-aloha==0.1.5"
+ALOHA_CAMERA = "top@128x96"  # gym-aloha renders 640x480; a CPU trains on a fifth of each side
 TARGET = 0.95  # MT10's average success, one BC policy per task from state
 # --one-policy's BC per suite, the measured best (50 demos per task, single-step, FiLM, seed 0). MT10: 96.2% at
 # 15,000 steps of demo train's MLP (92.8% at 5,000 with the instruction appended); MT50: 95.0% with a 512x3 MLP at
@@ -58,16 +87,21 @@ class SuiteConfig:
     out: str = "suite"
     tasks: tuple[str, ...] = ()  # a subset (default: every task of the suite)
     demos: int = setting(50, "Demonstrations per task.")
-    episodes: int = setting(50, "Evaluation episodes per task (seeds disjoint from the demonstrations').")
+    episodes: int | None = setting(None, "Evaluation episodes per task (seeds disjoint from the demonstrations').",
+                                   unset="metaworld 50, aloha 100")
     seed: int = setting(0, "Seed of the demonstrations, training and evaluation.")
     steps: int | None = setting(None, "BC steps.", unset="demo train's; --one-policy: MT10 15000, MT50 40000")
     # Single-step is the measured best here: MT10 97.8% against 96.2% with 16-step ensembled chunks (demo train's
     # default); MT50's handle-pull 50/50 against 0/50 (docs/environments.md).
-    chunk: int = setting(1, "BC's chunk (1: single-step, ensembling off; > 1: ensembled chunks).")
+    chunk: int | None = setting(None, "The policy's chunk (1: single-step, ensembling off; > 1: ensembled chunks).",
+                                unset="metaworld 1, aloha the policy's")
+    algo: str | None = setting(None, "The policy trained per task (a demo train --algo).", unset="metaworld bc, aloha act")
+    python: str | None = setting(None, "aloha: the interpreter with gym-aloha (its own venv: gym-aloha needs MuJoCo < "
+                                       "3.9).", metavar="PYTHON")
     workers: int = setting(1, "Collection and evaluation processes.")
     camera: str | None = setting(None, "Observe each task from this camera (NAME@WxH, e.g. corner@64x64) plus the 4-D "
-                                       "end-effector state, instead of the 39-D state.", metavar="NAME@WxH",
-                                 unset="the state")
+                                       "end-effector state, instead of the 39-D state; aloha: the top camera's size.",
+                                 metavar="NAME@WxH", unset=f"metaworld the state, aloha {ALOHA_CAMERA}")
     one_policy: bool = setting(False, "One policy for every task of the suite, told each task by its instruction (the "
                                       "whole set collected into one store), instead of one policy per task.")
     instructions: bool = setting(True, "--one-policy: condition the policy on the instructions (--no-instructions: the "
@@ -76,8 +110,15 @@ class SuiteConfig:
     def check(self) -> None:
         if self.suite not in SUITES:
             raise DemoError("SUITE", f"unknown suite {self.suite!r} (choose from {', '.join(SUITES)})")
-        if self.demos < 2 or self.episodes < 1:
+        if self.demos < 2 or (self.episodes is not None and self.episodes < 1):
             raise DemoError("--demos", "needs at least 2 demonstrations and 1 evaluation episode per task")
+        aloha = SUITES[self.suite].adapter == "aloha"
+        if aloha and not self.python:
+            raise DemoError("--python", f"aloha runs gym-aloha in its own interpreter: give it ({ALOHA_INSTALL}, "
+                                        "then --python aloha/bin/python)")
+        if aloha and (self.one_policy or (self.camera and not self.camera.startswith("top@"))):
+            raise DemoError("--camera" if self.camera else "--one-policy",
+                            "aloha trains one policy per task from its top camera (--camera top@WxH)")
         if self.one_policy and self.tasks:
             raise DemoError("--tasks", "--one-policy trains on the whole suite: leave out --tasks")
         if not self.instructions and not self.one_policy:
@@ -85,30 +126,60 @@ class SuiteConfig:
 
 
 def task_list(c: SuiteConfig) -> list[str]:
-    _, name = SUITES[c.suite]
-    tasks = task_set(name)
+    suite = SUITES[c.suite]
+    tasks = list(ALOHA_TASKS) if suite.adapter == "aloha" else task_set(suite.task_set)
     unknown = sorted(set(c.tasks) - set(tasks))
     if unknown:
         raise DemoError("--tasks", f"not in {c.suite}: {', '.join(unknown)}")
     return [t for t in tasks if not c.tasks or t in c.tasks]
 
 
+def algo(c: SuiteConfig) -> str:
+    return c.algo or SUITES[c.suite].algo
+
+
+def episodes(c: SuiteConfig) -> int:
+    return c.episodes or SUITES[c.suite].episodes
+
+
 def train_and_evaluate(c: SuiteConfig, folder: Path, given: dict[str, Any], evaluating: Callable[[], None]
                        ) -> tuple[dict[str, Any], dict[str, Any], float]:
-    """BC on ``folder/demos.zarr`` (``given`` over the suite's chunking) into ``folder/bc``, then ``demo eval`` of it:
-    the training summary, the evaluation and the time training ended."""
+    """The suite's policy on ``folder/demos.zarr`` (``given`` over the suite's chunking) into ``folder/<algo>``, then
+    ``demo eval`` of it: the training summary, the evaluation and the time training ended."""
     from demo.evaluation.evaluate import EvalConfig, evaluate  # deferred: torch stays out of demo --help
+    from demo.training.config import for_policy
 
-    train = algorithms.train("bc", TrainConfig(algo="bc", data=str(folder / "demos.zarr"), out=str(folder / "bc"),
-                                               seed=c.seed, chunk=c.chunk, ensemble=c.chunk > 1, **given), overwrite=True)
+    name, chunk = algo(c), c.chunk or SUITES[c.suite].chunk
+    chunking = {} if chunk is None else {"chunk": chunk, "ensemble": chunk > 1}
+    if SUITES[c.suite].adapter == "aloha":
+        given = {"obs_keys": ("obs.image_pixels_top", "obs.agent_pos"), **given}  # the paper's inputs, not env_state
+    run = folder / name
+    train = algorithms.train(name, for_policy(name, data=str(folder / "demos.zarr"), out=str(run), seed=c.seed,
+                                              **chunking, **given), overwrite=True)
     trained = time.perf_counter()
     evaluating()
-    return train, evaluate(EvalConfig(run=str(folder / "bc"), episodes=c.episodes, seed=c.seed, workers=c.workers)), trained
+    return train, evaluate(EvalConfig(run=str(run), episodes=episodes(c), seed=c.seed, workers=c.workers)), trained
+
+
+def collect_config(c: SuiteConfig, task: str) -> CollectConfig:
+    """``demo collect``'s configuration for one task of the suite (``task``: a set's name for --one-policy)."""
+    suite = SUITES[c.suite]
+    if suite.adapter == "aloha":
+        _, _, size = (c.camera or ALOHA_CAMERA).partition("@")
+        width, _, height = size.partition("x")
+        try:
+            options: dict[str, Any] = {"python": c.python, "width": int(width), "height": int(height)}
+        except ValueError:
+            raise DemoError("--camera", f"{c.camera!r} is not top@WIDTHxHEIGHT") from None
+        return CollectConfig(task=task_name(f"process:aloha_state:{task}"), episodes=c.demos, seed=c.seed,
+                             expert=f"demo.collect.aloha:{task}", task_options=options)
+    options = {} if c.camera is None else {"camera": c.camera}
+    return CollectConfig(task=task_name(f"metaworld:{task}"), episodes=c.demos, seed=c.seed, expert="metaworld",
+                         task_options=options)
 
 
 def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str, Any]:
     """Collect, train and evaluate one task (reused when its result is there for the same configuration)."""
-    adapter, _ = SUITES[c.suite]
     folder = Path(c.out) / task
     done = folder / "result.json"
     # What a task's result depends on: MT50 reuses MT10's tasks finished in the same --out.
@@ -118,22 +189,20 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
         if previous.get("configuration") == key:
             return previous
     folder.mkdir(parents=True, exist_ok=True)
-    env = task_name(f"{adapter}:{task}")
     t0 = time.perf_counter()
     log(f"{task}: collect {c.demos}")
-    options = {} if c.camera is None else {"camera": c.camera}
-    collected = collect_scripted(CollectConfig(task=env, episodes=c.demos, seed=c.seed, expert=adapter,
-                                               task_options=options), folder / "demos.zarr", workers=c.workers,
-                                 overwrite=True)
+    collected = collect_scripted(collect_config(c, task), folder / "demos.zarr", workers=c.workers, overwrite=True)
     t1 = time.perf_counter()
-    log(f"{task}: train BC on {collected.successes} successful demos")
-    train, result, t2 = train_and_evaluate(c, folder, {"steps": c.steps}, lambda: log(f"{task}: evaluate {c.episodes}"))
+    log(f"{task}: train {algo(c)} on {collected.successes} successful demos")
+    train, result, t2 = train_and_evaluate(c, folder, {"steps": c.steps},
+                                           lambda: log(f"{task}: evaluate {episodes(c)}"))
     t3 = time.perf_counter()
     out = {
         "task": task,
         "expert": {"successes": collected.successes, "episodes": collected.episodes,
                    "success_rate": collected.success_rate},
-        "bc": {k: result[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+        "policy": {k: result[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+        "algo": algo(c),
         "seeds_shared_with_training_data": result["seeds_shared_with_training_data"],
         "train": {k: train[k] for k in ("step", "train_loss", "val_loss", "train_episodes")},
         "seconds": {"collect": t1 - t0, "train": t2 - t1, "eval": t3 - t2},
@@ -149,7 +218,7 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
     them, with the training summary and times (reused when its result is there for the same configuration)."""
     from demo.store import EpisodeStore
 
-    adapter, name = SUITES[c.suite]
+    name = SUITES[c.suite].task_set
     folder = Path(c.out) / ("one-policy" if c.instructions else "one-policy-blank")
     done = folder / "result.json"
     # what the result depends on: the configuration and the suite's tuned BC (JSON's lists, as a reread gives them)
@@ -160,17 +229,15 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
         if previous.get("configuration") == key:
             return previous
     folder.mkdir(parents=True, exist_ok=True)
-    options = {} if c.camera is None else {"camera": c.camera}
     t0 = time.perf_counter()
     log(f"{name}: collect {c.demos} per task")
-    collect_scripted(CollectConfig(task=task_name(f"{adapter}:{name}"), episodes=c.demos, seed=c.seed, expert=adapter,
-                                   task_options=options), folder / "demos.zarr", workers=c.workers, overwrite=True)
+    collect_scripted(collect_config(c, name), folder / "demos.zarr", workers=c.workers, overwrite=True)
     t1 = time.perf_counter()
     log(f"{name}: train one BC policy" + (" on the instructions" if c.instructions else " without instructions"))
     tuned = ONE_POLICY[c.suite]
     train, result, t2 = train_and_evaluate(c, folder, {**tuned, "steps": c.steps or tuned["steps"],
                                                       "instructions": c.instructions},
-                                           lambda: log(f"{name}: evaluate {c.episodes} per task"))
+                                           lambda: log(f"{name}: evaluate {episodes(c)} per task"))
     t3 = time.perf_counter()
     with EpisodeStore.open(folder / "demos.zarr") as store:
         member, success = store.column("task").tolist(), store.column("success").astype(bool)
@@ -180,7 +247,8 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
         rows.append({
             "task": task.removeprefix("env:").partition(":")[2],
             "expert": {"successes": int(sum(mine)), "episodes": len(mine), "success_rate": sum(mine) / max(1, len(mine))},
-            "bc": {k: bc[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+            "policy": {k: bc[k] for k in ("successes", "episodes", "success_rate", "ci95", "mean_length", "failures")},
+            "algo": algo(c),
             "seeds_shared_with_training_data": result["seeds_shared_with_training_data"],
         })
     record = {"tasks": rows, "train": {k: train[k] for k in ("step", "train_loss", "val_loss", "train_episodes")},
@@ -192,49 +260,68 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
 def run(c: SuiteConfig, log: Callable[[str], None] = lambda text: None) -> dict[str, Any]:
     """Every task of the suite (module docstring); the JSON-able result, with the figure written to ``out``."""
     c.check()
+    suite = SUITES[c.suite]
     tasks = task_list(c)
     one = run_one_policy(c, log) if c.one_policy else None
     rows = one["tasks"] if one else [run_task(c, task, log) for task in tasks]
-    mean = sum(r["bc"]["success_rate"] for r in rows) / len(rows)
+    for row in rows:
+        if row["task"] in suite.published:
+            row["published"] = dict(zip(("success_rate", "source"), suite.published[row["task"]]))
+    mean = sum(r["policy"]["success_rate"] for r in rows) / len(rows)
     expert = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
-    seen = "state" if c.camera is None else f"{c.camera} camera + EE state"
-    what = "BC per task" if not c.one_policy else "one BC policy" + (" + instruction" if c.instructions else
-                                                                     ", instructions blanked")
-    name = c.suite + ("" if not c.one_policy else "-one-policy" if c.instructions else "-one-policy-blank")
-    figure = plot(rows, Path(c.out) / f"{name}.png", title=f"{c.suite}: {what} from {seen} ({c.demos} demos, "
-                                                           f"{c.episodes} eval episodes per task)")
-    return {"bench": "suite", "suite": c.suite, "tasks": rows, "average_bc": mean, "average_expert": expert,
-            "worst": [r["task"] for r in sorted(rows, key=lambda r: r["bc"]["success_rate"])[:5]],
-            "target": TARGET, "meets_target": mean >= TARGET, "figure": str(figure), "configuration": asdict(c),
+    if suite.adapter == "aloha":
+        seen = f"the {c.camera or ALOHA_CAMERA} camera + joint positions"
+    else:
+        seen = "state" if c.camera is None else f"{c.camera} camera + EE state"
+    name, what = algo(c), f"{algo(c)} per task"
+    if c.one_policy:
+        what = f"one {name} policy" + (" + instruction" if c.instructions else ", instructions blanked")
+    label = c.suite + ("" if not c.one_policy else "-one-policy" if c.instructions else "-one-policy-blank")
+    figure = plot(rows, Path(c.out) / f"{label}.png", name, title=f"{c.suite}: {what} from {seen} ({c.demos} demos, "
+                                                                  f"{episodes(c)} eval episodes per task)")
+    return {"bench": "suite", "suite": c.suite, "algo": name, "tasks": rows, "average": mean, "average_expert": expert,
+            "worst": [r["task"] for r in sorted(rows, key=lambda r: r["policy"]["success_rate"])[:5]],
+            "target": TARGET if suite.adapter == "metaworld" else None,
+            "meets_target": mean >= TARGET if suite.adapter == "metaworld" else None,
+            "figure": str(figure), "configuration": asdict(c),
             **({"one_policy": {k: one[k] for k in ("train", "seconds")}} if one else {})}
 
 
-def plot(rows: list[dict[str, Any]], path: Path, title: str) -> Path:
-    """Per-task success: the expert's (the ceiling) and BC's with its 95% interval."""
+def plot(rows: list[dict[str, Any]], path: Path, name: str, title: str) -> Path:
+    """Per-task success: the expert's (the ceiling), the policy's with its 95% interval, and the published figure
+    where the suite has one."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(max(6.0, 0.6 * len(rows) + 2), 4.6))
     x = list(range(len(rows)))
-    ax.bar([i - 0.2 for i in x], [r["expert"]["success_rate"] for r in rows], width=0.4, label="expert (collection)")
-    bc = [r["bc"]["success_rate"] for r in rows]
-    err = [[b - r["bc"]["ci95"][0] for b, r in zip(bc, rows)], [r["bc"]["ci95"][1] - b for b, r in zip(bc, rows)]]
-    ax.bar([i + 0.2 for i in x], bc, width=0.4, yerr=err, capsize=2, label="BC (held-out seeds)")
+    published = any("published" in r for r in rows)
+    width = 0.27 if published else 0.4
+    ax.bar([i - width / (1 if published else 2) for i in x], [r["expert"]["success_rate"] for r in rows], width=width,
+           label="expert (collection)")
+    ours = [r["policy"]["success_rate"] for r in rows]
+    err = [[b - r["policy"]["ci95"][0] for b, r in zip(ours, rows)], [r["policy"]["ci95"][1] - b for b, r in zip(ours, rows)]]
+    ax.bar([i + (0 if published else width / 2) for i in x], ours, width=width, yerr=err, capsize=2,
+           label=f"{name} (held-out seeds)")
+    if published:
+        ax.bar([i + width for i in x], [r.get("published", {}).get("success_rate", 0.0) for r in rows], width=width,
+               label="published", color="0.6")
     ax.set_xticks(x, [r["task"].removesuffix("-v3") for r in rows], rotation=45, ha="right", fontsize=8)
     ax.set_ylim(0, 1.18)
     ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
     ax.set_ylabel("success rate")
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8, loc="upper center", ncol=2, frameon=False)
+    ax.legend(fontsize=8, loc="upper center", ncol=3, frameon=False)
     fig.tight_layout()  # the rotated task names below the axes stay inside the figure
     return save_figure(fig, path)
 
 
-def format_rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
-    """Per task: expert success, BC success with its interval."""
+def format_rows(result: dict[str, Any]) -> list[tuple[str, ...]]:
+    """Per task: expert success, the policy's success with its interval, the published figure (where known)."""
     rows = []
     for r in result["tasks"]:
-        lo, hi = r["bc"]["ci95"]
+        lo, hi = r["policy"]["ci95"]
+        published = r.get("published", {}).get("success_rate")
         rows.append((r["task"], f"{r['expert']['successes']}/{r['expert']['episodes']}",
-                     f"{r['bc']['successes']}/{r['bc']['episodes']} ({lo:.0%}-{hi:.0%})"))
-    rows.append(("average", f"{result['average_expert']:.1%}", f"{result['average_bc']:.1%}"))
+                     f"{r['policy']['successes']}/{r['policy']['episodes']} ({lo:.0%}-{hi:.0%})",
+                     "-" if published is None else f"{published:.0%}"))
+    rows.append(("average", f"{result['average_expert']:.1%}", f"{result['average']:.1%}", ""))
     return rows
-

@@ -41,7 +41,9 @@ from demo.store.episode_store import IMAGE_PREFIX
 STATE = "state"  # the low-dim vector's entry in an observation dict (with cameras)
 MAX_LOW_DIM = 4096  # values per frame; anything larger is not a state vector
 # The robot's own sensors: what a real arm measures without a camera (velocities are left out by default).
-PROPRIO_PREFIXES = ("obs.joint_", "obs.gripper", "obs.ee_")
+# obs.agent_*: the robot's own state in LeRobot's Gymnasium environments (gym-aloha's 14 joint positions, PushT's
+# pusher), beside which they may observe an object's pose that a camera policy must not be given.
+PROPRIO_PREFIXES = ("obs.joint_", "obs.gripper", "obs.ee_", "obs.agent_")
 QUAT_TO_ROT6D = "quat_to_rot6d"
 DIFFERENCE = "difference"
 RELATIVE_ROTATION = "relative_rotation"

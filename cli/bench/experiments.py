@@ -230,18 +230,21 @@ def bench_multimodal(
 @with_options("tasks", config_options(SuiteConfig))
 def bench_suite(
     name: str = typer.Argument(..., metavar="SUITE", help="metaworld-mt10 or metaworld-mt50 (needs metaworld: "
-                               "pip install --no-deps metaworld==3.1.1)."),
+                               "pip install --no-deps metaworld==3.1.1), or aloha (gym-aloha's transfer cube and "
+                               "insertion: needs --python, an interpreter with gym-aloha, and gym-aloha's files beside "
+                               "demo: pip install --no-deps gym-aloha==0.1.5)."),
     out: str = typer.Option(SuiteConfig.out, "--out", metavar="DIR", help="Stores, runs and per-task results (reused "
                             "when finished with the same configuration)."),
     tasks: str = typer.Option(None, help="Comma-separated subset of the suite's tasks.", show_default="every task"),
     json_out: str = json_option("the results", default="-"),
     **settings: Any,  # one per option field of SuiteConfig (with_options)
 ) -> None:
-    """A public benchmark's tasks, one BC policy per task, judged in the benchmark's own environments."""
+    """A public benchmark's tasks, one policy per task, judged in the benchmark's own environments."""
     config = SuiteConfig(suite=name, out=out, tasks=tuple(t.strip() for t in (tasks or "").split(",") if t.strip()),
                          **settings)
     with bars() as progress:
         result = run_suite(config, log=lambda text: progress(Tick(f"bench suite {name}", message=text)))
-    report_console(json_out).print(table(f"{name}: success per task", ("task", "expert", "BC (95% CI)"),
+    report_console(json_out).print(table(f"{name}: success per task",
+                                         ("task", "expert", f"{result['algo']} (95% CI)", "published"),
                                          suite_rows(result)))
     write_json(result, json_out)

@@ -54,7 +54,7 @@ def test_suite_in_miniature(tmp_path: Path) -> None:
                  "--steps", "100", "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     (task,) = result["tasks"]
-    assert task["task"] == "reach-v3" and task["expert"]["episodes"] == 4 and task["bc"]["episodes"] == 3
+    assert task["task"] == "reach-v3" and task["expert"]["episodes"] == 4 and task["policy"]["episodes"] == 3
     assert task["seeds_shared_with_training_data"] == 0
     assert Path(result["figure"]).is_file()
     # A rerun with the same configuration reuses the finished task.
@@ -70,7 +70,7 @@ def test_suite_from_the_corner_camera_in_miniature(tmp_path: Path, one_line_erro
     assert main(["bench", "suite", "metaworld-mt10", "--tasks", "reach-v3", "--camera", "corner@32x32", "--demos", "3",
                  "--episodes", "2", "--steps", "20", "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
     (task,) = json.loads(out.read_text())["tasks"]
-    assert task["expert"]["successes"] == 3 and task["bc"]["episodes"] == 2
+    assert task["expert"]["successes"] == 3 and task["policy"]["episodes"] == 2
     with EpisodeStore.open(tmp_path / "runs" / "reach-v3" / "demos.zarr") as store:
         assert store.meta.features["obs.image_corner"].shape == (32, 32, 3)
         assert store.meta.features["obs.state"].shape == (4,)  # the end effector and gripper: no object, no goal
@@ -86,7 +86,7 @@ def test_one_policy_for_the_whole_suite_in_miniature(tmp_path: Path, one_line_er
     assert main(["bench", "suite", "metaworld-mt10", "--one-policy", "--demos", "2", "--episodes", "1", "--steps", "30",
                  "--out", str(tmp_path / "runs"), "--json", str(out)]) == 0
     result = json.loads(out.read_text())
-    assert len(result["tasks"]) == 10 and all(r["bc"]["episodes"] == 1 and r["expert"]["episodes"] == 2
+    assert len(result["tasks"]) == 10 and all(r["policy"]["episodes"] == 1 and r["expert"]["episodes"] == 2
                                               for r in result["tasks"])
     assert result["tasks"][0]["task"] == "reach-v3" and result["one_policy"]["seconds"]["train"] > 0
     with EpisodeStore.open(tmp_path / "runs" / "one-policy" / "demos.zarr") as store:

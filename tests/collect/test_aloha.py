@@ -1,0 +1,119 @@
+"""The scripted bimanual experts of gym-aloha's tasks (demo.collect.aloha): IK on both arms, servo targets that
+hold the arms against gravity, and success in gym-aloha's own environment, run by its own interpreter
+(DEMO_GYM_ALOHA_PYTHON: gym-aloha needs MuJoCo < 3.9, demo MuJoCo 4)."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import pytest
+
+from demo.cli.main import main
+from demo.store import EpisodeStore
+
+ALOHA_PYTHON = os.environ.get("DEMO_GYM_ALOHA_PYTHON")
+HAS_MJCF = importlib.util.find_spec("gym_aloha") is not None
+needs_mjcf = pytest.mark.skipif(not HAS_MJCF, reason="gym-aloha==0.1.5 is not installed beside demo (pip install "
+                                "--no-deps gym-aloha==0.1.5: its MJCF is the experts' IK model)")
+needs_env = pytest.mark.skipif(not (HAS_MJCF and ALOHA_PYTHON), reason="DEMO_GYM_ALOHA_PYTHON names no interpreter "
+                               "with gym-aloha (python -m venv aloha && aloha/bin/pip install gym-aloha==0.1.5)")
+START = np.array([0, -0.96, 1.16, 0, -0.3, 0] * 2)  # gym-aloha's START_ARM_POSE, arm joints only
+
+
+@needs_mjcf
+def test_the_ik_puts_both_tcps_on_their_targets() -> None:
+    from demo.collect.aloha import BimanualIK, aloha_mjcf, facing
+
+    ik = BimanualIK(aloha_mjcf("transfer_cube"))
+    start = ik.tcp(START)
+    targets = [(start[0] + [0.08, 0.03, -0.15], facing(0, pitch=np.radians(45))),
+               (start[1] + [-0.06, -0.04, -0.2], facing(1, pitch=np.radians(60), roll=np.radians(20)))]
+    q = START
+    for _ in range(4):  # each solve takes a few Gauss-Newton steps from the measured joints
+        q = ik.solve(q, targets)
+    for arm, (tcp, (target, rot)) in enumerate(zip(ik.tcp(q), targets)):
+        assert np.linalg.norm(tcp - target) < 2e-3, arm
+        link = ik.configuration.data.body(f"vx300s_{'left' if arm == 0 else 'right'}/gripper_link")
+        cos = (np.trace(rot.T @ link.xmat.reshape(3, 3)) - 1) / 2
+        assert np.arccos(np.clip(cos, -1, 1)) < 0.02, arm
+
+
+@needs_mjcf
+def test_servo_targets_hold_the_arms_where_the_plain_targets_let_them_sag() -> None:
+    """In gym-aloha's scene (MuJoCo 4 here), two seconds of commands: the joint positions themselves sag
+    under gravity (the wrists' servos are soft); the gravity-corrected targets hold them."""
+    from demo.collect.aloha import BimanualIK, aloha_mjcf
+
+    ik = BimanualIK(aloha_mjcf("transfer_cube"))
+    model = mujoco.MjModel.from_xml_path(str(aloha_mjcf("transfer_cube")))
+    want = START + np.array([0.2, 0.3, -0.4, 0.1, 0.6, 0.0] * 2)  # arms forward, wrists loaded
+    errors = []
+    for command in (want, ik.servo_targets(want)):
+        data = mujoco.MjData(model)
+        for arm in range(2):
+            data.qpos[8 * arm: 8 * arm + 6] = want[6 * arm: 6 * arm + 6]
+            data.ctrl[8 * arm: 8 * arm + 6] = command[6 * arm: 6 * arm + 6]
+            data.ctrl[8 * arm + 6: 8 * arm + 8] = [0.04, -0.04]
+        for _ in range(1000):
+            mujoco.mj_step(model, data)
+        reached = np.r_[data.qpos[0:6], data.qpos[8:14]]
+        errors.append(np.abs(reached - want).max())
+    assert errors[1] < 0.01 and errors[0] > 3 * errors[1], errors
+
+
+def collect(out: Path, task: str, episodes: int, *extra: str) -> EpisodeStore:
+    assert main(["collect", "--env", f"process:aloha_state:{task}", "--env-opt", f"python={ALOHA_PYTHON}",
+                 "--env-opt", "pixels=false", "--expert", f"demo.collect.aloha:{task}", "--episodes", str(episodes),
+                 "--seed", "7", "--workers", "0", "--out", str(out), *extra]) == 0
+    return EpisodeStore.open(out)
+
+
+@pytest.mark.slow
+@needs_env
+def test_the_experts_succeed_in_gym_alohas_own_environment(tmp_path: Path) -> None:
+    """gym-aloha's physics, reward and success (reward 4) judge them; its observation gains the objects'
+    poses (env_state), which the experts read."""
+    cube = collect(tmp_path / "cube.zarr", "transfer_cube", 4)
+    assert [cube.episode_info(i)["success"] for i in range(4)] == [True] * 4
+    episode = cube.read_episode(0)
+    assert episode["obs.agent_pos"].shape[1] == 14 and episode["obs.env_state"].shape[1] == 7
+    assert episode["action"].shape[1] == 14 and len(episode["action"]) < 300  # it ends at success
+    insertion = collect(tmp_path / "insertion.zarr", "insertion", 4)
+    assert sum(insertion.episode_info(i)["success"] for i in range(4)) >= 3
+    assert insertion.read_episode(0)["obs.env_state"].shape[1] == 14
+
+
+@needs_env
+def test_an_unknown_aloha_task_is_one_line(tmp_path: Path, one_line_error: Any) -> None:
+    one_line_error(["collect", "--env", "process:aloha_state:juggle", "--env-opt", f"python={ALOHA_PYTHON}",
+                    "--expert", "demo.collect.aloha:transfer_cube", "--episodes", "1", "--out", str(tmp_path / "x.zarr")],
+                   "juggle")
+
+
+@pytest.mark.slow
+@needs_env
+def test_the_aloha_suite_in_miniature(tmp_path: Path) -> None:
+    """`demo bench suite aloha`: collected in gym-aloha with pixels, ACT trained from the top camera and the joints
+    (not env_state), judged in gym-aloha on held-out seeds, set beside the paper's figure."""
+    import json
+
+    out = tmp_path / "suite.json"
+    assert main(["bench", "suite", "aloha", "--python", str(ALOHA_PYTHON), "--tasks", "transfer_cube", "--demos", "2",
+                 "--episodes", "1", "--steps", "20", "--camera", "top@32x24", "--out", str(tmp_path / "runs"),
+                 "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    (task,) = result["tasks"]
+    assert result["algo"] == "act" and task["expert"]["successes"] == 2 and task["policy"]["episodes"] == 1
+    assert task["published"]["success_rate"] == 0.9 and task["seeds_shared_with_training_data"] == 0
+    run = json.loads((tmp_path / "runs" / "transfer_cube" / "act" / "run.json").read_text())
+    assert run["policy"]["obs"]["keys"] == ["obs.agent_pos"] and run["policy"]["spec"]["images"] == [
+        ["obs.image_pixels_top", 24, 32]]
+
+
+def test_the_aloha_suite_needs_gym_alohas_interpreter(tmp_path: Path, one_line_error: Any) -> None:
+    one_line_error(["bench", "suite", "aloha", "--out", str(tmp_path / "runs")], "--python", "gym-aloha==0.1.5")
