@@ -21,7 +21,6 @@ files are read here, under ``demo``'s MuJoCo) with the free objects removed and 
 
 from __future__ import annotations
 
-import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,28 +29,16 @@ import mink
 import mujoco
 import numpy as np
 
-from demo.errors import DemoError
+from demo.sim.aloha_scene import aloha_mjcf
 from demo.sim.scene import ik_spec
 
 ARMS = ("vx300s_left", "vx300s_right")
 ARM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
-MJCF = {"transfer_cube": "bimanual_viperx_transfer_cube.xml", "insertion": "bimanual_viperx_insertion.xml"}
 TCP_IN_LINK = np.array([0.1376, 0.0, 0.0117])  # m, gripper_link frame (aloha_vx300s_left.toml's ee site)
 OPEN, CLOSED = 1.0, 0.0  # gym-aloha's normalised gripper command
 MEET = np.array([0.0, 0.5, 0.25])  # m, world: where the cube changes hands (ACT's meeting point)
 INSERT_HEIGHT = 0.15  # m, world z at which peg and socket meet
 HOLD_SLACK = 0.03  # m: how far the peg may have moved in the hand for the aim to follow it
-
-
-def aloha_mjcf(task: str) -> Path:
-    """gym-aloha's MJCF of ``task`` from the installed package (its files only; nothing is imported)."""
-    spec = importlib.util.find_spec("gym_aloha")
-    if spec is None or not spec.submodule_search_locations:
-        raise DemoError("gym-aloha", "is not installed beside demo (pip install --no-deps gym-aloha==0.1.5): "
-                        "its MJCF is the experts' IK model")
-    if task not in MJCF:
-        raise DemoError("gym-aloha", f"no scripted expert for task {task!r} (known: {', '.join(MJCF)})")
-    return Path(spec.submodule_search_locations[0]) / "assets" / MJCF[task]
 
 
 def rotation(axis: str, angle: float) -> np.ndarray:
@@ -135,8 +122,8 @@ class Waypoint:
 
 
 def interpolate(plan: list[Waypoint], t: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """The pose and gripper at step ``t`` on the piecewise-linear ``plan`` (orientation: the segment's
-    end, as the IK moves there at once only where the plan changes it in place)."""
+    """The TCP position, orientation and gripper at step ``t`` on ``plan``: positions and gripper linear
+    in time between waypoints, orientations along the shortest rotation (slerp); held after the last."""
     if t <= plan[0].t:
         return plan[0].pos, plan[0].rot, plan[0].grip
     for a, b in zip(plan, plan[1:]):
