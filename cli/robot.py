@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -12,6 +13,7 @@ from demo.cli.options import json_option, overwrite_option
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
 from demo.errors import DemoError
+from demo.sim.arms import lists_arms, load_arms
 from demo.sim.robot_check import MIN_SUCCESS, check_robot
 from demo.sim.robot_init import init_robot
 
@@ -30,11 +32,37 @@ def robot_check(
                              show_default="no picture"),
     json_out: str = json_option("the report"),
 ) -> None:
-    """DOF, joint limits, IK reach over every task's targets, the gripper closing, expert success on reach and pick."""
-    with bars() as progress:
-        report = check_robot(config, episodes=episodes, seed=seed, targets=targets, png=png, progress=progress)
+    """DOF, joint limits, IK reach over every task's targets, the gripper closing, expert success on reach and pick
+    (a robot of several arms, [[arms]]: each arm)."""
+    arms = load_arms(config) if lists_arms(config) else None
+    each: list[tuple[str, Any]] = list(zip(arms.arm_names, arms.arms)) if arms else [("", config)]
     shown = report_console(json_out)
-    shown.print(kv_table(f"robot {report.robot}", [
+    reports = []
+    for name, arm in each:
+        with bars() as progress:
+            report = check_robot(arm, episodes=episodes, seed=seed, targets=targets, png=png and _png_for(png, name),
+                                 progress=progress)
+        _show(shown, report, f"arm {name}: " if name else "")
+        reports.append((name, report))
+    write_json({"robot": arms.name, "arms": {n: r.to_json() for n, r in reports}} if arms else reports[0][1].to_json(),
+               json_out)
+    for name, report in reports:
+        if not report.ok:
+            worst = min(report.experts, key=lambda t: report.experts[t]["rate"])
+            r = report.experts[worst]
+            raise DemoError(config, f"{f'arm {name!r}: ' if name else ''}the {worst} expert succeeds in "
+                                    f"{r['successes']}/{r['episodes']} episodes (needs {MIN_SUCCESS:.0%}); check home, "
+                                    "ee_site's axes (z out of the gripper, y along the fingers), max_joint_velocity and, "
+                                    "for motor arms, pd_kp/pd_kd")
+
+
+def _png_for(png: Path, arm: str) -> Path:
+    """One picture per arm of a robot of several: ``home.png`` -> ``home_left.png``."""
+    return png.with_name(f"{png.stem}_{arm}{png.suffix}") if arm else png
+
+
+def _show(shown: Any, report: Any, prefix: str) -> None:
+    shown.print(kv_table(f"{prefix}robot {report.robot}", [
         ("config", report.config),
         ("mjcf", report.mjcf),
         ("DOF", report.dof),
@@ -43,20 +71,13 @@ def robot_check(
         ("gripper closes", f"{report.gripper_closes:.2f} of 1 after 1 s"),
         ("picture", report.png or "-"),
     ]))
-    shown.print(table("arm joints", ["joint", "lower", "upper", "actuation"],
+    shown.print(table(f"{prefix}arm joints", ["joint", "lower", "upper", "actuation"],
                       [(j.name, "-" if j.lower is None else f"{j.lower:.4g}", "-" if j.upper is None else f"{j.upper:.4g}",
                         j.actuation) for j in report.joints]))
-    shown.print(table("IK over each task's targets (1 cm, 0.1 rad)", ["task", "reached", "rate"],
+    shown.print(table(f"{prefix}IK over each task's targets (1 cm, 0.1 rad)", ["task", "reached", "rate"],
                       [(t, f"{r['reached']}/{r['targets']}", f"{r['rate']:.0%}") for t, r in report.ik.items()]))
-    shown.print(table("expert success", ["task", "success", "rate"],
+    shown.print(table(f"{prefix}expert success", ["task", "success", "rate"],
                       [(t, f"{r['successes']}/{r['episodes']}", f"{r['rate']:.0%}") for t, r in report.experts.items()]))
-    write_json(report.to_json(), json_out)
-    if not report.ok:
-        worst = min(report.experts, key=lambda t: report.experts[t]["rate"])
-        r = report.experts[worst]
-        raise DemoError(config, f"the {worst} expert succeeds in {r['successes']}/{r['episodes']} episodes (needs "
-                                f"{MIN_SUCCESS:.0%}); check home, ee_site's axes (z out of the gripper, y along the "
-                                "fingers), max_joint_velocity and, for motor arms, pd_kp/pd_kd")
 
 
 @robot_app.command("init")

@@ -261,13 +261,21 @@ def load_robot(path: str | Path | RobotConfig | None = None) -> RobotConfig:
     if isinstance(path, RobotConfig):
         return path
     cfg_path = BUILTIN_CONFIG if path is None else Path(path).expanduser()
-    if not cfg_path.is_file():
-        raise DemoError(cfg_path, "robot config not found (expected a .toml file)")
-    try:
-        raw = tomllib.loads(cfg_path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DemoError(cfg_path, f"not a valid TOML robot config: {exc}") from None
+    raw = read_robot_toml(cfg_path)
+    if "arms" in raw:
+        raise DemoError(cfg_path, "lists several arms ([[arms]], demo.sim.arms): demo's tasks take one arm (give one of "
+                                  "its arm configs); demo robot check checks each")
     return robot_from_keys(raw, cfg_path.parent, cfg_path.resolve(), default_name=cfg_path.stem)
+
+
+def read_robot_toml(path: Path) -> dict[str, Any]:
+    """A robot config file's keys; a missing file or bad TOML fails in one line naming it."""
+    if not path.is_file():
+        raise DemoError(path, "robot config not found (expected a .toml file)")
+    try:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise DemoError(path, f"not a valid TOML robot config: {exc}") from None
 
 
 def robot_from_keys(raw: dict[str, Any], base: Path, where: Path, default_name: str = "robot") -> RobotConfig:
