@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
+from demo.sim.render import CameraSet
 
 MJCF = {"transfer_cube": "bimanual_viperx_transfer_cube.xml", "insertion": "bimanual_viperx_insertion.xml"}
 START_ARM_QPOS = np.array([0, -0.96, 1.16, 0, -0.3, 0, 0.02239, -0.02239] * 2)  # gym-aloha's START_ARM_POSE
@@ -72,11 +73,14 @@ def initial_poses(task: str, seed: int | None) -> np.ndarray:
 
 class AlohaScene(gymnasium.Env):
     """gym-aloha's ``task`` (module docstring). Observation: ``agent_pos`` (14) and ``env_state`` (the objects'
-    poses: 7 per object, world frame, position m then quaternion wxyz)."""
+    poses: 7 per object, world frame, position m then quaternion wxyz); with ``pixels``, ``pixels.top`` too, the
+    top camera at ``width`` x ``height`` (uint8 [H, W, 3]), laid out as gym-aloha's ``pixels_agent_pos`` (so a
+    store's features are named alike: ``obs.image_pixels_top``)."""
 
     metadata = {"render_modes": [], "render_fps": int(round(1 / DT))}
 
-    def __init__(self, task: str = "transfer_cube", max_episode_steps: int = MAX_EPISODE_STEPS):
+    def __init__(self, task: str = "transfer_cube", max_episode_steps: int = MAX_EPISODE_STEPS, pixels: bool = False,
+                 width: int = 640, height: int = 480):
         self.task = task
         self.model = mujoco.MjModel.from_xml_path(str(aloha_mjcf(task)))
         self.data = mujoco.MjData(self.model)
@@ -84,10 +88,16 @@ class AlohaScene(gymnasium.Env):
         self.max_episode_steps = int(max_episode_steps)
         self.horizon = self.max_episode_steps
         objects = 7 if task == "transfer_cube" else 14
-        self.observation_space = gymnasium.spaces.Dict({
+        spaces: dict[str, gymnasium.Space] = {
             "agent_pos": gymnasium.spaces.Box(-1000.0, 1000.0, (14,), np.float64),
             "env_state": gymnasium.spaces.Box(-10.0, 10.0, (objects,), np.float64),
-        })
+        }
+        self.cameras = CameraSet([("top", int(height), int(width))] if pixels else [])
+        if pixels:
+            spaces["pixels"] = gymnasium.spaces.Dict({"top": gymnasium.spaces.Box(0, 255, (int(height), int(width), 3),
+                                                                                   np.uint8)})
+            self.cameras.open(self.model)
+        self.observation_space = gymnasium.spaces.Dict(spaces)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (14,), np.float32)
         self._geoms = {name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
                        for name in ("red_box", "red_peg", "pin", "table", LEFT_FINGER, RIGHT_FINGER, *SOCKET)}
@@ -145,18 +155,33 @@ class AlohaScene(gymnasium.Env):
         mujoco.mj_forward(self.model, self.data)
         self.t = int(state[-1])
 
-    def _obs(self) -> dict[str, np.ndarray]:
+    def close(self) -> None:
+        self.cameras.close()
+
+    def _obs(self) -> dict[str, Any]:
         q = self.data.qpos
         grips = normalised_gripper(q[[6, 14]])
-        return {"agent_pos": np.r_[q[0:6], grips[0], q[8:14], grips[1]].astype(np.float64),
-                "env_state": q[ARM_QPOS:].astype(np.float64).copy()}
+        obs: dict[str, Any] = {"agent_pos": np.r_[q[0:6], grips[0], q[8:14], grips[1]].astype(np.float64),
+                               "env_state": q[ARM_QPOS:].astype(np.float64).copy()}
+        if self.cameras.specs:
+            images: dict[str, np.ndarray] = {}
+            self.cameras.render(self.data, images)
+            obs["pixels"] = {"top": images["obs.image_top"]}
+        return obs
 
 
-def transfer_cube(max_episode_steps: int = MAX_EPISODE_STEPS) -> AlohaScene:
-    """``--env demo.sim.aloha_scene:transfer_cube``."""
-    return AlohaScene("transfer_cube", int(max_episode_steps))
+def _flag(value: bool | str) -> bool:
+    """An ``--env-opt`` flag: true, or the words false / no / 0."""
+    return value if isinstance(value, bool) else str(value).lower() not in ("0", "false", "no")
 
 
-def insertion(max_episode_steps: int = MAX_EPISODE_STEPS) -> AlohaScene:
-    """``--env demo.sim.aloha_scene:insertion``."""
-    return AlohaScene("insertion", int(max_episode_steps))
+def transfer_cube(max_episode_steps: int = MAX_EPISODE_STEPS, pixels: bool | str = False, width: int = 640,
+                  height: int = 480) -> AlohaScene:
+    """``--env demo.sim.aloha_scene:transfer_cube [--env-opt pixels=true --env-opt width=W --env-opt height=H]``."""
+    return AlohaScene("transfer_cube", int(max_episode_steps), _flag(pixels), int(width), int(height))
+
+
+def insertion(max_episode_steps: int = MAX_EPISODE_STEPS, pixels: bool | str = False, width: int = 640,
+              height: int = 480) -> AlohaScene:
+    """``--env demo.sim.aloha_scene:insertion`` (options as :func:`transfer_cube`)."""
+    return AlohaScene("insertion", int(max_episode_steps), _flag(pixels), int(width), int(height))

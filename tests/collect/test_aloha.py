@@ -170,20 +170,21 @@ def test_a_saved_scene_state_restores_exactly() -> None:
 
 @needs_env
 def test_the_rebuilt_scene_starts_as_gym_aloha_does() -> None:
-    """The same seed puts the objects where gym-aloha puts them, and the arms' first second under the expert
-    stays within millimetres of gym-aloha's (MuJoCo 4 against 3.8: close, not identical)."""
+    """The same seed puts the objects where gym-aloha puts them and renders the same top camera image, and the arms'
+    first second under the expert stays within 0.005 of gym-aloha's (MuJoCo 4 against 3.8: close, not identical)."""
     from demo.collect.aloha import AlohaExpert
     from demo.sim.aloha_scene import AlohaScene
     from demo.sim.process_env import ProcessEnv
 
     for task in ("transfer_cube", "insertion"):
-        theirs = ProcessEnv(f"aloha_state:{task}", str(ALOHA_PYTHON), {"pixels": False})
+        theirs = ProcessEnv(f"aloha_state:{task}", str(ALOHA_PYTHON), {"width": 64, "height": 48})
+        mine = AlohaScene(task, pixels=True, width=64, height=48)
         try:
-            mine = AlohaScene(task)
             a, _ = theirs.reset(seed=5)
             b, _ = mine.reset(seed=5)
             np.testing.assert_allclose(a["agent_pos"], b["agent_pos"], atol=1e-9)
             np.testing.assert_allclose(a["env_state"], b["env_state"], atol=1e-9)
+            assert np.abs(a["pixels"]["top"].astype(int) - b["pixels"]["top"]).mean() < 0.5
             ea, eb = AlohaExpert(task), AlohaExpert(task)
             for _ in range(50):
                 a = theirs.step(ea.act(a))[0]
@@ -191,3 +192,4 @@ def test_the_rebuilt_scene_starts_as_gym_aloha_does() -> None:
             assert np.abs(a["agent_pos"] - b["agent_pos"]).max() < 5e-3
         finally:
             theirs.close()
+            mine.close()
