@@ -21,6 +21,10 @@ import collections
 from typing import Any
 
 IDS = {"transfer_cube": "gym_aloha/AlohaTransferCube-v0", "insertion": "gym_aloha/AlohaInsertion-v0"}
+_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate", "gripper")
+# gym-aloha's 14-D action, named as a robot of several arms names it (demo.sim.arms); the gripper is normalised
+ACTION_NAMES = tuple(f"{arm}.{joint}" for arm in ("left", "right") for joint in _JOINTS)
+ACTION_UNITS = tuple("1" if name.endswith("gripper") else "rad" for name in ACTION_NAMES)
 ARM_QPOS = 16  # two arms of six joints and two fingers each come first in gym-aloha's qpos
 
 
@@ -78,4 +82,5 @@ def make(task: str, pixels: bool = True, width: int = 640, height: int = 480, ma
     if pixels:
         spaces["pixels"] = aloha.observation_space["pixels"]
     aloha.observation_space = gymnasium.spaces.Dict(spaces)
+    aloha.action_names, aloha.action_units = ACTION_NAMES, ACTION_UNITS  # what a store records of the action
     return env

@@ -135,7 +135,9 @@ def serve(inp: BinaryIO, out: BinaryIO) -> None:
                          "render_fps": (env.metadata or {}).get("render_fps"),
                          "max_episode_steps": getattr(spec, "max_episode_steps", None),
                          "horizon": getattr(env.unwrapped, "horizon", None),
-                         "instruction": getattr(env.unwrapped, "instruction", None)}
+                         "instruction": getattr(env.unwrapped, "instruction", None),
+                         "action_names": getattr(env.unwrapped, "action_names", None),
+                         "action_units": getattr(env.unwrapped, "action_units", None)}
             elif command == "reset":
                 obs, info = env.reset(seed=request.get("seed"))
                 reply = {"obs": obs, "info": info}

@@ -62,6 +62,11 @@ def task_name(env: str) -> str:
     return env if is_foreign(env) else ENV_PREFIX + env
 
 
+def _strings(value: Any, n: int) -> bool:
+    """Whether ``value`` is ``n`` non-empty strings."""
+    return isinstance(value, (list, tuple)) and len(value) == n and all(isinstance(v, str) and v for v in value)
+
+
 def success_of(info: Any) -> bool:
     """The environment's own success flag in a step's ``info`` (``success``, else ``is_success``; a number
     counts when > 0)."""
@@ -204,7 +209,13 @@ class ForeignEnv:
         if not isinstance(space, gymnasium.spaces.Box) or len(space.shape) != 1:
             raise DemoError(self.where, f"its action space is {space}; only a 1-D Box is recorded")
         n = int(space.shape[0])
-        return ActionSpec(ACTION_NAME, tuple(f"a{i}" for i in range(n)), ("1",) * n, frame="env",
+        # An environment may name its action's dimensions and units (``action_names``, ``action_units``)
+        names, units = (getattr(self.gym.unwrapped, k, None) for k in ("action_names", "action_units"))
+        if not _strings(names, n) or len(set(names)) != n:
+            names = tuple(f"a{i}" for i in range(n))
+        if not _strings(units, n):
+            units = ("1",) * n
+        return ActionSpec(ACTION_NAME, tuple(names), tuple(units), frame="env",
                           description="the environment's own command",
                           params={"low": _bound(space.low), "high": _bound(space.high)})
 

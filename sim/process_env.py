@@ -68,6 +68,9 @@ class ProcessEnv(gymnasium.Env):
             self.horizon = int(horizon)  # what demo.sim.foreign reads where the env has no spec
         if isinstance(made.get("instruction"), str):
             self.instruction = made["instruction"]
+        for key in ("action_names", "action_units"):  # what the environment calls its action's dimensions
+            if made.get(key) is not None:
+                setattr(self, key, tuple(made[key]))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         reply = self._call({"cmd": "reset", "seed": seed})

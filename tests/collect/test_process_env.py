@@ -117,3 +117,24 @@ def test_a_worker_that_dies_is_named_with_its_last_words(point: Path) -> None:
         assert "ended (exit code -9)" in str(err.value) and "\n" not in str(err.value)
     finally:
         env.close()
+
+
+def test_an_environment_that_names_its_action_dimensions_is_recorded_so(point: Path, tmp_path: Path) -> None:
+    """``action_names`` / ``action_units`` on the unwrapped environment travel through the worker into the store."""
+    named = point.parent / "named_point.py"
+    named.write_text(textwrap.dedent('''
+        from point_ns import DictPoint
+
+
+        def make():
+            env = DictPoint()
+            env.action_names, env.action_units = ("dx", "dy"), ("m", "m")
+            env.horizon = 60
+            return env
+    '''))
+    try:
+        collect(tmp_path / "named.zarr", "process:named_point:make", "--env-opt", f"python={sys.executable}")
+        with EpisodeStore.open(tmp_path / "named.zarr") as store:
+            assert store.meta.action.names == ("dx", "dy") and store.meta.action.units == ("m", "m")
+    finally:
+        sys.modules.pop("named_point", None)
