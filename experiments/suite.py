@@ -308,7 +308,7 @@ def plot(rows: list[dict[str, Any]], path: Path, name: str, title: str) -> Path:
     ax.set_ylim(0, 1.18)
     ax.set_yticks([0, 0.2, 0.4, 0.6, 0.8, 1.0])
     ax.set_ylabel("success rate")
-    ax.set_title(title, fontsize=10)
+    ax.set_title(title, fontsize=10, wrap=True)  # a two-task suite's figure is narrow
     ax.legend(fontsize=8, loc="upper center", ncol=3, frameon=False)
     fig.tight_layout()  # the rotated task names below the axes stay inside the figure
     return save_figure(fig, path)
