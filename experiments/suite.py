@@ -97,7 +97,7 @@ class SuiteConfig:
                                 unset="metaworld 1, aloha the policy's")
     algo: str | None = setting(None, "The policy trained per task (a demo train --algo).", unset="metaworld bc, aloha act")
     python: str | None = setting(None, "aloha: the interpreter with gym-aloha (its own venv: gym-aloha needs MuJoCo < "
-                                       "3.9).", metavar="PYTHON")
+                                       "3.9).", metavar="PYTHON", unset="none; aloha needs it")
     workers: int = setting(1, "Collection and evaluation processes.")
     camera: str | None = setting(None, "Observe each task from this camera (NAME@WxH, e.g. corner@64x64) plus the 4-D "
                                        "end-effector state, instead of the 39-D state; aloha: the top camera's size.",
