@@ -1,9 +1,10 @@
 """Scripted bimanual experts for gym-aloha's two tasks, by IK on both arms (mink).
 
-``demo collect --env process:aloha_state:make --env-opt task=transfer_cube --expert
+``demo collect --env process:aloha_state:transfer_cube --env-opt python=GYM_ALOHA_PYTHON --expert
 demo.collect.aloha:transfer_cube`` (``insertion`` alike): gym-aloha's own environment, in its own
-interpreter (:mod:`demo.sim.aloha_state`, which adds the objects' poses to the observation), driven by
-the expert here in gym-aloha's action convention: 14 numbers, each arm's six joint position targets
+interpreter (:mod:`demo.sim.aloha_state`, which adds the objects' poses to the observation), or the same
+scene in ``demo``'s MuJoCo (``--env demo.sim.aloha_scene:transfer_cube``), driven by the expert here in
+gym-aloha's action convention: 14 numbers, each arm's six joint position targets
 (rad) then its gripper (gym-aloha's normalised finger opening, 0 closed, 1 open), left arm first.
 
 The plan is ACT's (Zhao et al. 2023, its scripted policies): each arm follows waypoints of its
@@ -30,10 +31,10 @@ import mujoco
 import numpy as np
 
 from demo.sim.aloha_scene import aloha_mjcf
+from demo.sim.aloha_state import ARM_JOINTS
 from demo.sim.scene import ik_spec
 
 ARMS = ("vx300s_left", "vx300s_right")
-ARM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")
 TCP_IN_LINK = np.array([0.1376, 0.0, 0.0117])  # m, gripper_link frame (aloha_vx300s_left.toml's ee site)
 OPEN, CLOSED = 1.0, 0.0  # gym-aloha's normalised gripper command
 MEET = np.array([0.0, 0.5, 0.25])  # m, world: where the cube changes hands (ACT's meeting point)
@@ -78,11 +79,16 @@ class BimanualIK:
         self.dof = np.array([self.model.jnt_dofadr[self.model.joint(n).id] for n in names])
         self.gravity = mujoco.MjData(self.model)
 
+    def _qpos(self, q: np.ndarray) -> np.ndarray:
+        """The IK model's qpos with both arms' 12 joints at ``q``."""
+        full = self.model.qpos0.copy()
+        full[self.qadr] = q
+        return full
+
     def solve(self, q: np.ndarray, targets: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """``q``: both arms' 12 joint positions (left first); ``targets``: per arm (TCP position, 3x3
         orientation), world frame. Returns the 12 joint targets."""
-        full = self.model.qpos0.copy()
-        full[self.qadr] = q
+        full = self._qpos(q)
         self.configuration.update(full)
         self.posture.set_target(full)  # the redundancy stays where the arm is
         for task, (tcp, rot) in zip(self.frames, targets):
@@ -96,16 +102,13 @@ class BimanualIK:
 
     def servo_targets(self, q: np.ndarray) -> np.ndarray:
         """The commands (rad) that hold the arms at joint positions ``q`` (12) against gravity."""
-        self.gravity.qpos[:] = self.model.qpos0
-        self.gravity.qpos[self.qadr] = q
+        self.gravity.qpos[:] = self._qpos(q)
         mujoco.mj_forward(self.model, self.gravity)
         return q + self.gravity.qfrc_bias[self.dof] / self.kp
 
     def tcp(self, q: np.ndarray) -> list[np.ndarray]:
         """Each arm's TCP position (world, m) at joint positions ``q`` (12)."""
-        full = self.model.qpos0.copy()
-        full[self.qadr] = q
-        self.configuration.update(full)
+        self.configuration.update(self._qpos(q))
         out = []
         for arm in ARMS:
             body = self.configuration.data.body(f"{arm}/gripper_link")
@@ -147,6 +150,7 @@ class AlohaExpert:
         self.ik = ik or BimanualIK(aloha_mjcf(task))
         self.t = 0
         self.start: list[np.ndarray] | None = None  # each TCP at the first step
+        self.tcp_now: list[np.ndarray] = []  # each TCP at this step
         self.held: dict[int, np.ndarray] = {}  # arm -> its object's position when its gripper closed
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:

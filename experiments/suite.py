@@ -10,7 +10,8 @@ gym-aloha's transfer cube and insertion):
 2. train the suite's policy on the successful ones. Meta-World: BC, single-step (``chunk`` 1, no
    ensembling; measured best there, whose scripted policies are reactive), ``demo train``'s defaults
    otherwise. gym-aloha: ACT from the top camera plus the 14 joint positions (``agent_pos``), the
-   protocol of the ACT paper's simulated tasks, at ``demo train``'s ACT defaults;
+   protocol of the ACT paper's simulated tasks (``demo train``'s default inputs for such a store), at its ACT
+   defaults;
 3. evaluate on ``episodes`` episodes whose seeds are disjoint from the demonstrations'
    (``demo eval``), success by the environment's own signal (Meta-World's ``info["success"]``,
    gym-aloha's reward 4).
@@ -42,10 +43,10 @@ from demo import algorithms
 from demo.collect.scripted import CollectConfig, collect_scripted
 from demo.errors import DemoError
 from demo.figures import pyplot, save_figure
+from demo.sim.aloha_state import IDS as ALOHA_IDS
 from demo.sim.foreign import task_name
 from demo.sim.metaworld import task_set
 from demo.training.config import setting
-
 
 
 @dataclass(frozen=True)
@@ -61,14 +62,14 @@ class Suite:
     published: dict[str, tuple[float, str]] = field(default_factory=dict)  # task -> (success, where from)
 
 
-ACT_PAPER = "ACT paper (Zhao et al. 2023), 50 scripted demos, 480x640 cameras, 400-step episodes"
+ACT_PAPER = "ACT paper (Zhao et al. 2023), 50 scripted demos, the 480x640 top camera, 400-step episodes"
 SUITES = {
     "metaworld-mt10": Suite("metaworld", "MT10", "bc", 1, 50),
     "metaworld-mt50": Suite("metaworld", "MT50", "bc", 1, 50),
     "aloha": Suite("aloha", "", "act", None, 100,
                    {"transfer_cube": (0.90, ACT_PAPER), "insertion": (0.50, ACT_PAPER)}),
 }
-ALOHA_TASKS = ("transfer_cube", "insertion")
+ALOHA_TASKS = tuple(ALOHA_IDS)  # gym-aloha's two tasks
 ALOHA_INSTALL = "python -m venv aloha && aloha/bin/pip install gym-aloha==0.1.5"
 ALOHA_CAMERA = "top@128x96"  # gym-aloha renders 640x480; a CPU trains on a fifth of each side
 TARGET = 0.95  # MT10's average success, one BC policy per task from state
@@ -151,8 +152,6 @@ def train_and_evaluate(c: SuiteConfig, folder: Path, given: dict[str, Any], eval
 
     name, chunk = algo(c), c.chunk or SUITES[c.suite].chunk
     chunking = {} if chunk is None else {"chunk": chunk, "ensemble": chunk > 1}
-    if SUITES[c.suite].adapter == "aloha":
-        given = {"obs_keys": ("obs.image_pixels_top", "obs.agent_pos"), **given}  # the paper's inputs, not env_state
     run = folder / name
     train = algorithms.train(name, for_policy(name, data=str(folder / "demos.zarr"), out=str(run), seed=c.seed,
                                               **chunking, **given), overwrite=True)
@@ -165,12 +164,10 @@ def collect_config(c: SuiteConfig, task: str) -> CollectConfig:
     """``demo collect``'s configuration for one task of the suite (``task``: a set's name for --one-policy)."""
     suite = SUITES[c.suite]
     if suite.adapter == "aloha":
-        _, _, size = (c.camera or ALOHA_CAMERA).partition("@")
-        width, _, height = size.partition("x")
-        try:
-            options: dict[str, Any] = {"python": c.python, "width": int(width), "height": int(height)}
-        except ValueError:
-            raise DemoError("--camera", f"{c.camera!r} is not top@WIDTHxHEIGHT") from None
+        from demo.sim.render import parse_camera  # deferred: MuJoCo's renderer stays out of demo --help
+
+        _, width, height = parse_camera(c.camera or ALOHA_CAMERA, "--camera")
+        options: dict[str, Any] = {"python": c.python, "width": width, "height": height}
         return CollectConfig(task=task_name(f"process:aloha_state:{task}"), episodes=c.demos, seed=c.seed,
                              expert=f"demo.collect.aloha:{task}", task_options=options)
     options = {} if c.camera is None else {"camera": c.camera}

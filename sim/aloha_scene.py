@@ -25,12 +25,11 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.aloha_state import ACTION_NAMES, ACTION_UNITS
+from demo.sim.aloha_state import ACTION_NAMES, ACTION_UNITS, ARM_QPOS, flag
 from demo.sim.render import CameraSet
 
 MJCF = {"transfer_cube": "bimanual_viperx_transfer_cube.xml", "insertion": "bimanual_viperx_insertion.xml"}
 START_ARM_QPOS = np.array([0, -0.96, 1.16, 0, -0.3, 0, 0.02239, -0.02239] * 2)  # gym-aloha's START_ARM_POSE
-ARM_QPOS = 16  # each arm: six joints, then its two fingers
 FINGER_OPEN, FINGER_CLOSED = 0.058, 0.01844  # m: gym-aloha's PUPPET_GRIPPER_POSITION_OPEN / _CLOSE
 DT, SUBSTEPS = 0.02, 10  # s per control step, physics steps per control step
 MAX_EPISODE_STEPS = 300  # gym-aloha's registration
@@ -172,18 +171,13 @@ class AlohaScene(gymnasium.Env):
         return obs
 
 
-def _flag(value: bool | str) -> bool:
-    """An ``--env-opt`` flag: true, or the words false / no / 0."""
-    return value if isinstance(value, bool) else str(value).lower() not in ("0", "false", "no")
-
-
 def transfer_cube(max_episode_steps: int = MAX_EPISODE_STEPS, pixels: bool | str = False, width: int = 640,
                   height: int = 480) -> AlohaScene:
     """``--env demo.sim.aloha_scene:transfer_cube [--env-opt pixels=true --env-opt width=W --env-opt height=H]``."""
-    return AlohaScene("transfer_cube", int(max_episode_steps), _flag(pixels), int(width), int(height))
+    return AlohaScene("transfer_cube", int(max_episode_steps), flag(pixels), int(width), int(height))
 
 
 def insertion(max_episode_steps: int = MAX_EPISODE_STEPS, pixels: bool | str = False, width: int = 640,
               height: int = 480) -> AlohaScene:
     """``--env demo.sim.aloha_scene:insertion`` (options as :func:`transfer_cube`)."""
-    return AlohaScene("insertion", int(max_episode_steps), _flag(pixels), int(width), int(height))
+    return AlohaScene("insertion", int(max_episode_steps), flag(pixels), int(width), int(height))

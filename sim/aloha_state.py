@@ -21,11 +21,16 @@ import collections
 from typing import Any
 
 IDS = {"transfer_cube": "gym_aloha/AlohaTransferCube-v0", "insertion": "gym_aloha/AlohaInsertion-v0"}
-_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate", "gripper")
+ARM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")  # each ViperX's, in order
 # gym-aloha's 14-D action, named as a robot of several arms names it (demo.sim.arms); the gripper is normalised
-ACTION_NAMES = tuple(f"{arm}.{joint}" for arm in ("left", "right") for joint in _JOINTS)
+ACTION_NAMES = tuple(f"{arm}.{joint}" for arm in ("left", "right") for joint in (*ARM_JOINTS, "gripper"))
 ACTION_UNITS = tuple("1" if name.endswith("gripper") else "rad" for name in ACTION_NAMES)
 ARM_QPOS = 16  # two arms of six joints and two fingers each come first in gym-aloha's qpos
+
+
+def flag(value: bool | str) -> bool:
+    """An ``--env-opt`` flag (it arrives as text): true, or the words false / no / 0."""
+    return value if isinstance(value, bool) else str(value).lower() not in ("0", "false", "no")
 
 
 def transfer_cube(pixels: bool = True, width: int = 640, height: int = 480, max_episode_steps: int | None = None) -> Any:
@@ -51,8 +56,7 @@ def make(task: str, pixels: bool = True, width: int = 640, height: int = 480, ma
 
     if task not in IDS:
         raise ValueError(f"unknown gym-aloha task {task!r} (known: {', '.join(IDS)})")
-    if isinstance(pixels, str):
-        pixels = pixels.lower() not in ("0", "false", "no")
+    pixels = flag(pixels)
     extra = {} if max_episode_steps is None else {"max_episode_steps": int(max_episode_steps)}
     env = gymnasium.make(IDS[task], obs_type="pixels_agent_pos", observation_width=int(width),
                          observation_height=int(height), **extra)
