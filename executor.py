@@ -41,6 +41,7 @@ from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 from typing import Any
 
+from demo import interrupts
 from demo.errors import DemoError
 
 KINDS = ("process", "ray")
@@ -346,10 +347,6 @@ def _handler(signum: int, handler: Any) -> Iterator[None]:
             signal.signal(signum, previous)
 
 
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
 @contextmanager
 def _terminate_interrupts() -> Iterator[None]:
     """SIGTERM ends this process as Ctrl-C does while worker processes run (unless a handler of its
@@ -357,7 +354,7 @@ def _terminate_interrupts() -> Iterator[None]:
     if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
         yield
         return
-    with _handler(signal.SIGTERM, _interrupt):
+    with _handler(signal.SIGTERM, interrupts.interrupt):
         yield
 
 

@@ -35,7 +35,7 @@ from typer._click.exceptions import (  # typer >= 0.29 vendors click (pinned in 
     UsageError,
 )
 
-from demo import __version__
+from demo import __version__, interrupts
 from demo.cli.output import err_console
 from demo.errors import DemoError, one_line, os_error
 from demo.verify import NO_VERIFY_ENV
@@ -156,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``demo ARGV``; return the exit code. Every failure is one line on stderr,
     ``error: <file>: <problem>`` (``--debug``: the traceback too), whatever the terminal width."""
     global _ARGV
+    if argv is None:  # this process is the command: Ctrl-C ends it, within a bounded time
+        interrupts.install()
     _ARGV = list(sys.argv[1:] if argv is None else argv)
     verify_setting = os.environ.get(NO_VERIFY_ENV)  # --no-verify lasts one command (main is called in-process too)
     # Library warnings (torch, zarr, h5py) are held back: a failed command prints its one line alone.

@@ -3,8 +3,9 @@
 ``torchrun --nproc-per-node N -m demo train ...`` (or ``demo train ... --nproc N``, :func:`launch`)
 starts N copies of the same command with ``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``MASTER_ADDR``
 and ``MASTER_PORT`` set. :func:`init_from_env` joins them into one process group (gloo on the CPU,
-NCCL on CUDA, one GPU per local rank); a world of one is no group at all, so a plain ``demo train``
-never touches ``torch.distributed``.
+NCCL on CUDA, one GPU per local rank). Under torchrun even a world of one joins its group (one GPU
+runs the same NCCL path as eight); a plain ``demo train``, outside torchrun, never touches
+``torch.distributed``.
 
 Roles: every rank samples its own batches and computes gradients, which DDP averages (an all-reduce
 in ``backward``), so the weights stay identical on every rank. Rank 0 alone writes the run directory
@@ -33,7 +34,7 @@ class Group:
     """This process's place in a data-parallel run."""
 
     rank: int  # 0 .. world - 1; 0 writes the run directory
-    world: int  # processes in the run (> 1)
+    world: int  # processes in the run (1 under ``torchrun --nproc-per-node 1``)
     local_rank: int  # index on this machine: the GPU it uses
 
     @property
@@ -51,13 +52,17 @@ def is_main_process() -> bool:
     return int(os.environ.get("RANK", "0") or 0) == 0
 
 
+def under_torchrun() -> bool:
+    """Whether torchrun started this process (it sets the rendezvous variables, also for one process)."""
+    return all(name in os.environ for name in ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT"))
+
+
 def init_from_env(device: torch.device) -> tuple[Group | None, torch.device]:
-    """Join torchrun's process group (None for a world of one) and the device this rank trains on:
+    """Join torchrun's process group (None outside torchrun) and the device this rank trains on:
     NCCL and ``cuda:LOCAL_RANK`` for a CUDA device, gloo and ``device`` otherwise."""
-    world = env_world_size()
-    if world <= 1:
+    if not under_torchrun():
         return None, device
-    group = Group(int(os.environ["RANK"]), world, int(os.environ.get("LOCAL_RANK", "0")))
+    group = Group(int(os.environ["RANK"]), env_world_size(), int(os.environ.get("LOCAL_RANK", "0")))
     if device.type == "cuda":
         device = torch.device("cuda", group.local_rank)
         torch.cuda.set_device(device)
@@ -95,6 +100,11 @@ def mean(value: float, group: Group | None) -> float:
         t = t.cuda()
     dist.all_reduce(t)
     return float(t.item()) / group.world
+
+
+def backend() -> str:
+    """The process group's backend: ``nccl`` on CUDA, ``gloo`` on the CPU."""
+    return str(dist.get_backend())
 
 
 def barrier(group: Group | None) -> None:

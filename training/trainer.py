@@ -140,7 +140,7 @@ class TrainingRun(Run):
         self.record["robot"] = records[0]
         self.record["data"]["content"] = [s.content_hash() for s in stores]  # what was read, not only where
         if self.group is not None:  # --batch-size is per process
-            self.record["data_parallel"] = {"processes": self.group.world,
+            self.record["data_parallel"] = {"processes": self.group.world, "backend": distributed.backend(),
                                             "global_batch_size": self.group.world * self.config.batch_size}
         robots, robot_of = ckpt.distinct_robots(records)
         if len(stores) > 1:

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # Bottom to top. A package may import from any layer below its own; packages sharing a layer are independent.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "jsonio", "seeds", "progress", "figures", "executor", "verify", "__init__"),  # foundation
+    ("errors", "interrupts", "jsonio", "seeds", "progress", "figures", "executor", "verify", "__init__"),  # foundation
     ("store",),
     ("sim",),
     ("collect", "curate", "convert", "interop"),  # the pipeline's stages, over stores and the simulator

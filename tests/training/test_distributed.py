@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from demo.cli.main import main
 from demo.collect.scripted import CollectConfig, collect_scripted
@@ -42,7 +43,7 @@ def test_two_gloo_processes_train_one_run_written_by_rank_0(reach: Path, tmp_pat
     # Rank 0 alone wrote the directory: the same files as the 1-process run, nothing stray (tmp files).
     assert files(two) == files(one)
     record = json.loads((two / "run.json").read_text())
-    assert record["data_parallel"] == {"processes": 2, "global_batch_size": 64}
+    assert record["data_parallel"] == {"processes": 2, "backend": "gloo", "global_batch_size": 64}
     assert "data_parallel" not in json.loads((one / "run.json").read_text())
     losses = [loss for _, loss in json.loads((two / "metrics.json").read_text())["train_loss"]]
     assert len(losses) == 3 and losses[-1] < 0.8 * losses[0]
@@ -54,6 +55,20 @@ def test_two_gloo_processes_train_one_run_written_by_rank_0(reach: Path, tmp_pat
     out = tmp_path / "eval.json"
     assert main(["eval", str(two), "--episodes", "2", "--json", str(out)]) == 0
     assert json.loads(out.read_text())["episodes"] == 2
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA GPU on this machine")
+def test_one_gpu_under_torchrun_trains_over_nccl_and_evaluates_on_the_cpu(reach: Path, tmp_path: Path) -> None:
+    run = tmp_path / "gpu"
+    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node=1",
+                           "-m", "demo", "train", str(reach), "--out", str(run), *ARGS, "--device", "cuda", "--json", "-"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    record = json.loads((run / "run.json").read_text())
+    assert record["data_parallel"] == {"processes": 1, "backend": "nccl", "global_batch_size": 32}
+    losses = [loss for _, loss in json.loads((run / "metrics.json").read_text())["train_loss"]]
+    assert losses[-1] < 0.8 * losses[0]
+    assert main(["eval", str(run), "--episodes", "2", "--device", "cpu", "--json", str(tmp_path / "eval.json")]) == 0
 
 
 def test_nproc_is_checked(reach: Path, tmp_path: Path) -> None:
