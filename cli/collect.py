@@ -12,6 +12,7 @@ from demo.cli.options import (address_option, env_opt_option, env_option, execut
 from demo.cli.output import kv_table, report_console, warn, write_json
 from demo.cli.progress import bars
 from demo.collect.kinesthetic import collect_kinesthetic
+from demo.collect.leader_arms import collect_leader_arms
 from demo.collect.scripted import CollectConfig, check_success, collect_scripted
 from demo.collect.vr import collect_vr
 from demo.errors import DemoError
@@ -90,8 +91,9 @@ def collect(
                                         "--noise and --randomize do not apply")
         if min_success is not None:
             raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
-    if env is not None and source != "scripted":
-        raise DemoError("--env", "collects from an environment's expert (--source scripted)")
+    if env is not None and source not in ("scripted", "leader"):
+        raise DemoError("--env", "collects from an environment's expert (--source scripted) or from the leader arms "
+                                 "of a robot of several arms (--source leader --robot ARMS.toml)")
     if (expert is not None or env_opt) and env is None:
         raise DemoError("--expert" if expert is not None else "--env-opt", "applies to a Gymnasium environment (--env)")
     robot_config = str(robot) if robot else None
@@ -110,6 +112,11 @@ def collect(
                          overwrite=overwrite, progress=progress, instruction=instruction or "")
             if source == "vr":
                 result = collect_vr(task, input, out, seed, calib=calib, scale=scale, ik=ik, smoothing=smoothing, **human)
+            elif env is not None:  # leader arms of a robot of several arms, in the environment
+                if cameras:
+                    raise DemoError("--camera", "an environment renders its own cameras (--env-opt)")
+                del human["cameras"]
+                result = collect_leader_arms(task, input, out, seed, **human)
             else:
                 result = collect_kinesthetic(task, input, out, seed, leader=source == "leader", **human)
     summary = {

@@ -31,12 +31,12 @@ import mujoco
 import numpy as np
 
 from demo.sim.aloha_scene import aloha_mjcf
-from demo.sim.aloha_state import ARM_JOINTS
+from demo.sim.aloha_state import ARM_JOINTS, GRIPPER_COMMAND
 from demo.sim.scene import ik_spec
 
 ARMS = ("vx300s_left", "vx300s_right")
 TCP_IN_LINK = np.array([0.1376, 0.0, 0.0117])  # m, gripper_link frame (aloha_vx300s_left.toml's ee site)
-OPEN, CLOSED = 1.0, 0.0  # gym-aloha's normalised gripper command
+OPEN, CLOSED = GRIPPER_COMMAND  # gym-aloha's normalised gripper command
 MEET = np.array([0.0, 0.5, 0.25])  # m, world: where the cube changes hands (ACT's meeting point)
 INSERT_HEIGHT = 0.15  # m, world z at which peg and socket meet
 HOLD_SLACK = 0.03  # m: how far the peg may have moved in the hand for the aim to follow it

@@ -25,6 +25,15 @@ okay     0.15 s      0.004 rad     0.6, 4 Hz (~10% overshoot)
 poor     0.30 s      0.012 rad     0.35, 3 Hz (~30% overshoot)
 =======  ==========  ============  ================================
 
+For a robot of several arms in a Gymnasium environment (gym-aloha's pair in :mod:`demo.sim.aloha_scene`)::
+
+    python -m demo.collect.human_files --env demo.sim.aloha_scene:transfer_cube \
+        --expert demo.collect.aloha:transfer_cube --robot aloha_vx300s.toml --episodes 10 --out-dir human/
+
+writes ``LEADER.csv`` alone: each arm's leader moved along that environment's scripted expert's joint targets
+by a person of the profile (one person per arm: their tremors differ), columns ``ARM.JOINT`` and
+``ARM.gripper`` (:mod:`demo.collect.leader_arms`).
+
 Retarget them with ``collect_vr(task, POSES.jsonl, out, scale=1/1.3)`` (first pose aligned to the
 EE) or ``collect_vr(..., calib=CALIB.json)`` (absolute), ``collect_kinesthetic(task,
 JOINTS.csv, out)`` and ``collect_kinesthetic(task, LEADER.csv, out, leader=True)``.
@@ -41,9 +50,14 @@ from typing import Any
 
 import numpy as np
 
+from demo.collect.foreign import foreign_episode
 from demo.collect.leader import calibration as leader_calibration
+from demo.collect.leader_arms import LeaderArms
 from demo.collect.scripted import CollectConfig, make_env_for, scripted_episode
-from demo.sim import load_robot
+from demo.seeds import episode_seed
+from demo.sim import load_robot, make_env
+from demo.sim.arms import load_arms
+from demo.sim.foreign import task_name
 from demo.sim.robot import LeaderCalibration
 from demo.sim.geometry import axis_angle_quat, quat_conj, quat_mul
 
@@ -203,6 +217,64 @@ def leader_rows(path: ScriptedPath, leader: LeaderCalibration, profile: LeaderPr
     return [[path.seed, f"{tk:.4f}", *[f"{v:.6f}" for v in qk], f"{g:.6f}"] for tk, qk, g in zip(t, readings, grip)]
 
 
+def leader_arms_rows(actions: np.ndarray, seed: int, fps: float, leaders: LeaderArms,
+                     gripper_command: tuple[float, float], profile: LeaderProfile,
+                     rng: np.random.Generator) -> list[list[Any]]:
+    """One episode of a several-arm ``LEADER.csv`` from an environment's actions [T, A] (each arm's joint targets,
+    rad, then its gripper command): each arm's leader moved along its own targets as :func:`leader_rows` moves one."""
+    open_, closed = gripper_command
+    per_arm, start = [], 0
+    for arm, cal in zip(leaders.arms.arms, leaders.calibrations):
+        n = arm.n_arm
+        q = actions[:, start:start + n]
+        closedness = (actions[:, start + n] - open_) / (closed - open_)
+        path = ScriptedPath(seed, fps, arm.arm_joints, ee_pos=np.zeros((len(q), 3)), ee_quat=np.zeros((len(q), 4)),
+                            joint_pos=q, gripper=closedness, joint_command=q)
+        per_arm.append(leader_rows(path, cal, profile, rng))
+        start += n + 1
+    return [per_arm[0][k][:2] + [cell for rows in per_arm for cell in rows[k][2:]] for k in range(len(per_arm[0]))]
+
+
+def write_leader_arms_file(
+    path: str | Path,
+    env_name: str,
+    expert: str,
+    robot: str,
+    episodes: int = 10,
+    seed: int = 0,
+    *,
+    profile: LeaderProfile = LEADER_PROFILES["good"],
+    task_options: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A several-arm ``LEADER.csv`` at ``path`` from ``expert``'s episodes ``episode_seed(seed, i)`` in the
+    environment ``env_name`` (the module docstring); returns a summary."""
+    leaders = LeaderArms(load_arms(robot))
+    env = make_env(task_name(env_name), **(task_options or {}))
+    rng = np.random.default_rng([seed, 9])
+    rows: list[list[Any]] = []
+    successes = 0
+    try:
+        gripper_command = leaders.check_env(env, f"--env {env_name}")
+        for i in range(episodes):
+            s = episode_seed(seed, i)
+            data, info = foreign_episode(env, expert, s)
+            successes += int(info["success"])
+            rows += leader_arms_rows(data["action"].astype(np.float64), s, env.fps, leaders, gripper_command, profile, rng)
+    finally:
+        env.close()
+    header = ["episode_seed", "t"]
+    for i in range(len(leaders.arms.arms)):
+        header += [c for c in leaders.joint_columns if c.startswith(f"{leaders.arms.arm_names[i]}.")]
+        header.append(leaders.gripper_columns[i])
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return {"file": str(path), "env": env_name, "expert": expert, "episodes": episodes, "seed": seed,
+            "scripted_successes": successes, "leader_profile": profile.name}
+
+
 def write_human_files(
     out_dir: str | Path,
     task: str = "pick",
@@ -259,7 +331,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robot", default=None, help="robot config TOML (default: built-in)")
     parser.add_argument("--leader-profile", default="good", choices=sorted(LEADER_PROFILES),
                         help="the person moving the leader arm (LEADER.csv)")
+    parser.add_argument("--env", default=None, help="a Gymnasium environment of a robot of several arms: LEADER.csv "
+                                                    "alone, from --expert's episodes (--robot: its ARMS.toml)")
+    parser.add_argument("--expert", default=None, help="--env: its scripted expert, module:callable")
     args = parser.parse_args(argv)
+    if args.env is not None:
+        if args.expert is None or args.robot is None:
+            parser.error("--env needs --expert and --robot (the robot of several arms)")
+        summary = write_leader_arms_file(Path(args.out_dir) / "LEADER.csv", args.env, args.expert, args.robot,
+                                         args.episodes, args.seed, profile=LEADER_PROFILES[args.leader_profile])
+        print(json.dumps(summary, indent=2))
+        return 0
     summary = write_human_files(args.out_dir, args.task, args.episodes, args.seed, robot=args.robot,
                                 leader=LEADER_PROFILES[args.leader_profile])
     d = summary["out_dir"]

@@ -63,7 +63,7 @@ class JointTrack:
     episode: InputEpisode
     t: np.ndarray  # (N,) s
     q: np.ndarray  # (N, n_arm) rad, robot.arm_joints order
-    gripper: np.ndarray  # (N,) 0 open .. 1 closed
+    gripper: np.ndarray  # (N,) 0 open .. 1 closed; (N, k) for a file of k grippers (a robot of several arms)
 
 
 def joint_ranges(robot: RobotConfig) -> dict[str, tuple[float, float]]:
@@ -76,10 +76,11 @@ def joint_ranges(robot: RobotConfig) -> dict[str, tuple[float, float]]:
 
 def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
                     ranges: Mapping[str, tuple[float, float]] | None = None,
-                    gripper_in_unit_range: bool = True) -> list[JointTrack]:
+                    gripper_in_unit_range: bool = True, grippers: tuple[str, ...] = ("gripper",)) -> list[JointTrack]:
     """Read and validate a joint CSV; any problem is a DemoError naming ``path:line``. ``ranges``
     (:func:`joint_ranges`): a joint value far outside its joint's range is one. ``gripper_in_unit_range``:
-    the gripper column is a command in [0, 1] (False: any finite reading, a leader's, calibrated later)."""
+    the gripper column is a command in [0, 1] (False: any finite reading, a leader's, calibrated later).
+    ``grippers``: the gripper columns (several: a robot of several arms, each track's ``gripper`` [N, k])."""
     path = Path(path)
     if not path.is_file():
         raise DemoError(path, "joint file not found")
@@ -105,7 +106,7 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
             continue
         cells = [c.strip() for c in row]
         if columns is None:
-            columns = _header(where, cells, arm_joints)
+            columns = _header(where, cells, arm_joints, grippers)
             continue
         if len(cells) != len(columns):
             raise DemoError(where, f"expected {len(columns)} values (as the header), got {len(cells)}")
@@ -124,27 +125,27 @@ def parse_joint_csv(path: str | Path, arm_joints: tuple[str, ...],
         t = _number(where, "t", cells[columns["t"]])
         check_time(where, t, rows[-1][0] if rows else None, rows[0][0] if rows else None)
         q = np.array([_joint(where, j, cells[columns[j]], (ranges or {}).get(j)) for j in arm_joints])
-        g = _number(where, "gripper", cells[columns["gripper"]])
-        if gripper_in_unit_range and not 0.0 <= g <= 1.0:
-            raise DemoError(where, f"'gripper' must be within 0 (open) .. 1 (closed), got {g:g}")
-        rows.append((t, q, g))
+        g = np.array([_number(where, name, cells[columns[name]]) for name in grippers])
+        if gripper_in_unit_range and not ((0.0 <= g) & (g <= 1.0)).all():
+            raise DemoError(where, f"'gripper' must be within 0 (open) .. 1 (closed), got {g[0]:g}")
+        rows.append((t, q, g[0] if len(grippers) == 1 else g))
     if columns is None:
-        raise DemoError(path, "empty file: expected a header row (t, joint names, gripper)")
+        raise DemoError(path, f"empty file: expected a header row (t, joint names, {', '.join(grippers)})")
     close()
     if not tracks:
         raise DemoError(path, "no samples after the header row")
     return tracks
 
 
-def _header(where: str, cells: list[str], arm_joints: tuple[str, ...]) -> dict[str, int]:
+def _header(where: str, cells: list[str], arm_joints: tuple[str, ...], grippers: tuple[str, ...]) -> dict[str, int]:
     columns = {name: i for i, name in enumerate(cells)}
     if len(columns) != len(cells):
         raise DemoError(where, "header names a column twice")
-    need = ["t", *arm_joints, "gripper"]
+    need = ["t", *arm_joints, *grippers]
     missing = [c for c in need if c not in columns]
     if missing:
-        raise DemoError(where, f"header lacks column(s) {', '.join(missing)} (needs t, {', '.join(arm_joints)}, gripper; "
-                               f"optional episode_seed)")
+        raise DemoError(where, f"header lacks column(s) {', '.join(missing)} (needs t, {', '.join(arm_joints)}, "
+                               f"{', '.join(grippers)}; optional episode_seed)")
     unknown = sorted(set(columns) - set(need) - {"episode_seed"})
     if unknown:
         raise DemoError(where, f"unknown column(s) {', '.join(unknown)}")

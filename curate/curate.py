@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from demo.curate.frames import FrameData, load_frames
+from demo.curate.frames import GRIPPER_WORDS, FrameData, load_frames
 from demo.curate.signals import Signal
 from demo.curate.signals import consistency as consistency_signals
 from demo.curate.signals import duplicates as duplicate_signals
@@ -41,7 +41,7 @@ from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.sim.foreign import ACTION_NAME as FOREIGN_ACTION
 from demo.store.episode_table import REASONS_COLUMN
-from demo.store import EpisodeStore
+from demo.store import ActionSpec, EpisodeStore
 from demo.store.location import StorePath, same_store, store_path
 
 ALL_SIGNALS: tuple[Signal, ...] = (
@@ -68,8 +68,9 @@ class CurateConfig:
     trim_idle: bool = True  # cut idle runs at the start/end of kept episodes (an edit, recorded)
     max_idle: float | None = 0.2  # fraction of (trimmed) frames in mid-episode pauses
     # range/s^3 (see demo.curate.signals.jerk); at this default, off for a Gymnasium environment's own command
-    # (demo.sim.foreign: its units are unknown, and the jerk of a velocity-like command, as Meta-World's scripted
-    # controllers switch it, says nothing of shakiness: 17 of 20 of their demonstrations read 1,000-7,000)
+    # unless it names its arm dimensions positions (rad or m, as gym-aloha's joint targets): otherwise its units
+    # are unknown, and the jerk of a velocity-like command, as Meta-World's scripted controllers switch it, says
+    # nothing of shakiness (17 of 20 of their demonstrations read 1,000-7,000)
     max_jerk: float | None = DEFAULT_MAX_JERK
     min_consistency: float | None = 0.5  # fraction of sampled frames that agree with neighbours
     max_novelty: float | None = None  # mean distance to other episodes' states (normalised obs units)
@@ -208,13 +209,22 @@ def decide(
     return kept, reasons, codes, trim
 
 
+def commands_positions(action: ActionSpec) -> bool:
+    """Whether the action's arm dimensions are positions, whose jerk is shakiness: demo's own actions, and a
+    Gymnasium environment's where it names them in rad or m (its grippers left out, as the jerk leaves them)."""
+    if action.name != FOREIGN_ACTION:
+        return True
+    arm = [u for n, u in zip(action.names, action.units) if not any(w in n.lower() for w in GRIPPER_WORDS)]
+    return bool(arm) and all(u in ("rad", "m") for u in arm)
+
+
 def analyse(
     store: EpisodeStore, config: CurateConfig | None = None, progress: Progress | None = None, total: int = len(STEPS)
 ) -> Curation:
     """Signals and decisions for ``store`` without writing anything (``progress``: see :func:`compute_signals`)."""
     config = config or CurateConfig()
     config.validate()
-    if store.meta.action.name == FOREIGN_ACTION and config.max_jerk == DEFAULT_MAX_JERK:
+    if config.max_jerk == DEFAULT_MAX_JERK and not commands_positions(store.meta.action):
         config = dataclasses.replace(config, max_jerk=None)  # see CurateConfig.max_jerk
     signals, fd, timing = compute_signals(store, config, progress, total)
     t0 = time.perf_counter()

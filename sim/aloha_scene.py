@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 
 from demo.errors import DemoError
-from demo.sim.aloha_state import ACTION_NAMES, ACTION_UNITS, ARM_QPOS, flag
+from demo.sim.aloha_state import ACTION_NAMES, ACTION_UNITS, ARM_QPOS, GRIPPER_COMMAND, flag
 from demo.sim.render import CameraSet
 
 MJCF = {"transfer_cube": "bimanual_viperx_transfer_cube.xml", "insertion": "bimanual_viperx_insertion.xml"}
@@ -100,6 +100,7 @@ class AlohaScene(gymnasium.Env):
         self.observation_space = gymnasium.spaces.Dict(spaces)
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (14,), np.float32)
         self.action_names, self.action_units = ACTION_NAMES, ACTION_UNITS
+        self.gripper_command = GRIPPER_COMMAND
         self._geoms = {name: mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
                        for name in ("red_box", "red_peg", "pin", "table", LEFT_FINGER, RIGHT_FINGER, *SOCKET)}
         self.t = 0

@@ -25,6 +25,7 @@ ARM_JOINTS = ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wris
 # gym-aloha's 14-D action, named as a robot of several arms names it (demo.sim.arms); the gripper is normalised
 ACTION_NAMES = tuple(f"{arm}.{joint}" for arm in ("left", "right") for joint in (*ARM_JOINTS, "gripper"))
 ACTION_UNITS = tuple("1" if name.endswith("gripper") else "rad" for name in ACTION_NAMES)
+GRIPPER_COMMAND = (1.0, 0.0)  # the normalised gripper command at open, at closed (leader capture maps onto it)
 ARM_QPOS = 16  # two arms of six joints and two fingers each come first in gym-aloha's qpos
 
 
@@ -87,4 +88,5 @@ def make(task: str, pixels: bool = True, width: int = 640, height: int = 480, ma
         spaces["pixels"] = aloha.observation_space["pixels"]
     aloha.observation_space = gymnasium.spaces.Dict(spaces)
     aloha.action_names, aloha.action_units = ACTION_NAMES, ACTION_UNITS  # what a store records of the action
+    aloha.gripper_command = GRIPPER_COMMAND
     return env

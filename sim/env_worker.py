@@ -137,7 +137,8 @@ def serve(inp: BinaryIO, out: BinaryIO) -> None:
                          "horizon": getattr(env.unwrapped, "horizon", None),
                          "instruction": getattr(env.unwrapped, "instruction", None),
                          "action_names": getattr(env.unwrapped, "action_names", None),
-                         "action_units": getattr(env.unwrapped, "action_units", None)}
+                         "action_units": getattr(env.unwrapped, "action_units", None),
+                         "gripper_command": getattr(env.unwrapped, "gripper_command", None)}
             elif command == "reset":
                 obs, info = env.reset(seed=request.get("seed"))
                 reply = {"obs": obs, "info": info}

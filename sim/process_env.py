@@ -68,7 +68,8 @@ class ProcessEnv(gymnasium.Env):
             self.horizon = int(horizon)  # what demo.sim.foreign reads where the env has no spec
         if isinstance(made.get("instruction"), str):
             self.instruction = made["instruction"]
-        for key in ("action_names", "action_units"):  # what the environment calls its action's dimensions
+        # what the environment calls its action's dimensions, and its gripper command at open and closed
+        for key in ("action_names", "action_units", "gripper_command"):
             if made.get(key) is not None:
                 setattr(self, key, tuple(made[key]))
 
