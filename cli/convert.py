@@ -13,11 +13,13 @@ from demo.cli.main import app
 from demo.cli.options import json_option, mask_option, overwrite_option, robot_option, store_argument
 from demo.cli.output import kv_table, report_console, table, write_json
 from demo.cli.progress import bars
-from demo.convert.check import replay_check, round_trip
+from demo.convert.arms import arms_replay_check, convert_arms_store
+from demo.convert.check import CheckReport, replay_check, round_trip
 from demo.convert.convert import ConvertOptions, convert_store
 from demo.convert.representations import get_representation
 from demo.errors import DemoError
 from demo.progress import Progress
+from demo.sim.arms import lists_arms
 from demo.store import EpisodeStore
 
 
@@ -50,6 +52,19 @@ def convert(
     selection = _selection(source, mask, episodes)
     shown = report_console(json_out)
     results: dict[str, Any] = {}
+    if robot is not None and lists_arms(robot):  # a robot of several arms: ee7 for each
+        if to != "ee7" or rotation or delta_frame or round_trip_:
+            raise DemoError("--to", f"{robot} has several arms: it converts --to ee7 (each arm's, concatenated), with "
+                                    "--check and --out")
+        with bars() as progress:
+            if out is not None:
+                results["convert"] = convert_arms_store(source, out, str(robot), overwrite=overwrite, progress=progress)
+                shown.print(kv_table("converted", [(k, v) for k, v in results["convert"].items()]))
+            if check:
+                report = arms_replay_check(source, str(robot), episodes=selection, progress=progress)
+                results["check"] = _show_check(report, shown)
+        write_json(results, json_out)
+        return
     with bars() as progress:
         if out is not None:
             results["convert"] = _run_convert(source, out, opts, overwrite, progress, shown)
@@ -113,13 +128,16 @@ def _run_round_trip(source: str, opts: Any, selection: Any, progress: Progress, 
 
 
 def _run_check(source: str, opts: Any, selection: Any, progress: Progress, shown: Console) -> dict[str, Any]:
-    report = replay_check(source, opts, episodes=selection, progress=progress)
+    return _show_check(replay_check(source, opts, episodes=selection, progress=progress), shown)
+
+
+def _show_check(report: CheckReport, shown: Console) -> dict[str, Any]:
     rows = [
         (e.episode, e.frames, f"{e.max_pos_err_m:.2e}", f"{e.max_rot_err_rad:.2e}", _yn(e.original_success),
          _yn(e.converted_success), "yes" if e.agree else "[red]no[/]", e.ik_failed_steps)
         for e in report.episodes
     ]
-    shown.print(table(f"replay: {report.source} vs {report.target} from recorded states",
+    shown.print(table(f"replay: {report.source} vs {report.target} from {report.replayed_from}",
                       ["episode", "frames", "pos err m", "rot err rad", "orig ok", "conv ok", "agree", "IK fails"],
                       rows))
     s = report.summary()

@@ -254,7 +254,7 @@ def write_leader_arms_file(
     rows: list[list[Any]] = []
     successes = 0
     try:
-        gripper_command = leaders.check_env(env, f"--env {env_name}")
+        gripper_command = leaders.arms.check_env(env, f"--env {env_name}")
         for i in range(episodes):
             s = episode_seed(seed, i)
             data, info = foreign_episode(env, expert, s)

@@ -77,41 +77,23 @@ class LeaderArms:
             parts += [cal.follower(readings[:, start:start + n]), (open_ + cal.closedness(grips[:, i]) * (closed - open_))[:, None]]
             start += n
         actions = np.concatenate(parts, axis=1)
-        joints = self._joint_dims()
+        joints = self.arms.joint_dims()
         clipped = np.clip(actions[:, joints], self.limits[:, 0], self.limits[:, 1])
         excess = np.abs(actions[:, joints] - clipped).max(axis=1)
         actions[:, joints] = clipped
         error = np.stack([np.zeros_like(excess), excess], axis=1)
         return actions.astype(np.float32), (excess <= LIMIT_TOL)[:, None], error.astype(np.float32)
 
-    def _joint_dims(self) -> np.ndarray:
-        return np.array([i for i, n in enumerate(self.arms.action_names) if not n.endswith(".gripper")])
-
-    def check_env(self, env: Any, where: str) -> tuple[float, float]:
-        """The environment's gripper command at (open, closed), once its action is known to be this robot's."""
-        names = list(env.action_spec.names)
-        if names != list(self.arms.action_names):
-            raise DemoError(where, f"its action is {_few(names)}; {self.arms.name}'s leaders drive "
-                                   f"{_few(self.arms.action_names)}")
-        command = getattr(env.gym.unwrapped, "gripper_command", None)
-        if command is None or len(command) != 2 or command[0] == command[1]:
-            raise DemoError(where, "does not say its gripper command at open and at closed (gripper_command)")
-        return float(command[0]), float(command[1])
-
     def tracking_lag(self, commanded: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray | None:
         """Mean |leader at k - follower at k + 1| per follower joint (rad), or None without ``obs.agent_pos``."""
         measured = data.get("obs.agent_pos")
         if measured is None or measured.shape[-1] != commanded.shape[-1]:
             return None
-        joints = self._joint_dims()
+        joints = self.arms.joint_dims()
         steps = min(len(commanded), len(measured)) - 1
         if steps < 1:
             return np.zeros(len(joints))
         return np.abs(commanded[:steps, joints] - measured[1:steps + 1, joints]).mean(axis=0)
-
-
-def _few(names: list[str]) -> str:
-    return ", ".join(names) if len(names) <= 4 else f"{', '.join(names[:4])}, ... ({len(names)} dimensions)"
 
 
 def leader_arms_episode(env: Any, actions: np.ndarray, seed: int) -> Any:
@@ -159,7 +141,7 @@ def collect_leader_arms(
 
     def run(env: Any, index: int, count: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         if not command:
-            command["gripper"] = leaders.check_env(env, f"--env {env_name.removeprefix(ENV_PREFIX)}")
+            command["gripper"] = leaders.arms.check_env(env, f"--env {env_name.removeprefix(ENV_PREFIX)}")
         track = tracks[index]
         s = reset_seed(track.episode, seed, index)
         actions, ik_ok, ik_err = leaders.actions(track, env.fps, command["gripper"])

@@ -53,6 +53,7 @@ class CheckReport:
     source: str
     target: str
     episodes: list[EpisodeCheck] = field(default_factory=list)
+    replayed_from: str = "recorded states"  # where each replay starts (a Gymnasium environment's: its seed)
 
     def summary(self) -> dict[str, Any]:
         eps = self.episodes

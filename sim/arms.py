@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from demo.errors import DemoError
 from demo.sim.robot import RobotConfig, load_robot, read_robot_toml, robot_from_keys
 
@@ -45,6 +47,34 @@ class ArmsConfig:
         """Every action (and proprioception) dimension's name, in order."""
         return [f"{name}.{part}" for name, arm in zip(self.arm_names, self.arms)
                 for part in (*(j.removeprefix(arm.arm_prefix) for j in arm.arm_joints), "gripper")]
+
+    def joint_dims(self) -> np.ndarray:
+        """Indices of the arm joints' dimensions in the action (the grippers' left out), arm after arm."""
+        return np.array([i for i, n in enumerate(self.action_names) if not n.endswith(".gripper")])
+
+    def arm_slices(self) -> list[slice]:
+        """Each arm's dimensions in the action: its joints, then its gripper."""
+        out, start = [], 0
+        for arm in self.arms:
+            out.append(slice(start, start + arm.n_arm + 1))
+            start += arm.n_arm + 1
+        return out
+
+    def check_env(self, env: Any, where: str) -> tuple[float, float]:
+        """That a Gymnasium environment (:class:`demo.sim.foreign.ForeignEnv`) takes these arms' joint targets:
+        its action named as :attr:`action_names` says, and its gripper command at (open, closed), returned
+        (``gripper_command``: gym-aloha's normalised opening is (1, 0)); a one-line error otherwise."""
+        names = list(env.action_spec.names)
+        if names != list(self.action_names):
+            raise DemoError(where, f"its action is {_few(names)}; {self.name}'s arms take {_few(self.action_names)}")
+        command = getattr(env.gym.unwrapped, "gripper_command", None)
+        if command is None or len(command) != 2 or command[0] == command[1]:
+            raise DemoError(where, "does not say its gripper command at open and at closed (gripper_command)")
+        return float(command[0]), float(command[1])
+
+
+def _few(names: list[str]) -> str:
+    return ", ".join(names) if len(names) <= 4 else f"{', '.join(names[:4])}, ... ({len(names)} dimensions)"
 
 
 def lists_arms(path: str | Path) -> bool:
