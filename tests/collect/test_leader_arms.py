@@ -83,6 +83,17 @@ def test_a_leader_file_at_the_control_rate_replays_the_expert_exactly(expert_act
         assert store.meta.action.names[0] == "left.waist"
         np.testing.assert_allclose(episode["action"][:len(expert_actions)], expert_actions, atol=1e-5)
         assert episode["info.ik_ok"].all()
+    # The stored episode replays identically: its actions from its seed give the same followers, frame by frame.
+    env = make_env("env:" + ENV)
+    try:
+        env.reset(SEED)
+        replayed = []
+        for a in episode["action"]:
+            replayed.append(env.frame()["obs.agent_pos"])
+            env.step(a)
+    finally:
+        env.close()
+    np.testing.assert_array_equal(np.array(replayed, dtype=np.float32), episode["obs.agent_pos"])
     lag = summary["tracking_error_rad"]
     assert set(lag) == {f"{arm}.{j}" for arm in ("left", "right")
                         for j in ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")}
@@ -121,6 +132,9 @@ def test_bad_leader_input_is_one_line_and_stores_nothing(tmp_path: Path, capsys:
     nan = tmp_path / "nan.csv"
     nan.write_text("\n".join(lines[:3] + [lines[3].replace(lines[3].split(",")[4], "nan", 1)] + lines[4:]) + "\n")
     cases.append((["--input", str(nan), "--robot", ARMS], f"{nan}:4: "))
+    repeated = tmp_path / "repeated.csv"  # a time given twice: a rate of 0
+    repeated.write_text("\n".join(lines[:3] + [lines[2]] + lines[3:]) + "\n")
+    cases.append((["--input", str(repeated), "--robot", ARMS], f"{repeated}:4: "))
     cases.append((["--input", str(good)], "--robot: --source leader in an environment needs its robot of several arms"))
     cases.append((["--input", str(good), "--robot", str(ROBOTS / "aloha_vx300s_left.toml")], "aloha_vx300s_left.toml"))
     for argv, needle in cases:
