@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from demo.cli.main import app
 from demo.cli.options import robot_option
 from demo.cli.output import console, err_console
+from demo.errors import DemoError
 from demo.view.teleop import TeleopConfig, serve_teleop
+from demo.view.teleop_arms import ArmsLeaderConfig, ArmsLeaderSession
 
 
 @app.command()
@@ -18,6 +21,9 @@ def teleop(
     mode: str = typer.Option("vr", help="kinesthetic (drag the backdrivable arm), vr (move a hand gizmo) or leader "
                              "(move a leader arm by its joint sliders or its hand; the robot follows it)."),
     task: str = typer.Option("pick", help="Task: reach, pick, push, avoid, stack."),
+    env: str = typer.Option(None, "--env", metavar="ENV", help="leader: a Gymnasium environment of a robot of several "
+                            "arms (demo.sim.aloha_scene:transfer_cube) with --robot ARMS.toml: one leader per arm.",
+                            show_default="none: the task"),
     out: str = typer.Option(None, "--out", "-o", metavar="STORE", help="Store to append saved episodes to (created if missing).",
                              show_default="none: nothing is saved"),
     seed: int = typer.Option(0, help="Seed of the episodes' initial states."),
@@ -28,9 +34,17 @@ def teleop(
     port: int = typer.Option(8080, "--port", "-p", help="Port (0 picks a free one)."),
 ) -> None:
     """Live teleoperation in the browser (viser): Start / Stop & save / Discard, gripper buttons."""
-    config = TeleopConfig(mode=mode, task=task, out=str(out) if out else None, seed=seed, operator=operator, ik=ik,
-                          robot=str(robot) if robot else None, host=host, port=port)
-    session = serve_teleop(config)
+    session: Any
+    if env is not None:
+        if mode != "leader" or robot is None:
+            raise DemoError("--env", "live in an environment: --mode leader with --robot ARMS.toml (a robot of "
+                                     "several arms), one leader per arm")
+        session = ArmsLeaderSession(ArmsLeaderConfig(env=env, robot=str(robot), out=str(out) if out else None, seed=seed,
+                                                     operator=operator, host=host, port=port))
+    else:
+        session = serve_teleop(TeleopConfig(mode=mode, task=task, out=str(out) if out else None, seed=seed,
+                                            operator=operator, ik=ik, robot=str(robot) if robot else None, host=host,
+                                            port=port))
     try:
         if host not in ("127.0.0.1", "localhost", "::1"):
             err_console.print(f"[bold yellow]warning:[/] listening on {host}: other machines can drive the robot")

@@ -81,12 +81,119 @@ class TeleopConfig:
     verbose: bool = False
 
 
-class TeleopSession:
+class LiveSession:
+    """What every live page shares: its viser server, its store, its environment and the real-time thread that
+    steps it (``step()``, at the environment's control rate), with the camera renderer that thread owns.
+    A subclass sets ``env``, ``server``, ``store``, ``config`` (its ``verbose``) and ``saved``."""
+
+    env: Any
+    server: Any
+    store: Any
+    config: Any
+    saved: int
+    recording: bool
+    status_note: str
+    buttons: dict[str, Any]
+    _enabled: dict[str, bool]
+    _lock: threading.RLock
+    _thread: threading.Thread | None
+    _stop: threading.Event
+    _renderer: mujoco.Renderer | None
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.server.get_port()}"
+
+    @property
+    def port(self) -> int:
+        return int(self.server.get_port())
+
+    def _open_page(self, label: str, model: mujoco.MjModel) -> None:
+        """Serve the page (``config.host``, ``config.port``): the scene of ``model``, the subclass's panel
+        (``_build_page``), the first picture (``_show``)."""
+        import viser  # deferred: heavy dependency (viser)
+
+        with _quiet(not self.config.verbose):
+            self.server = viser.ViserServer(host=self.config.host, port=self.config.port, label=label,
+                                            verbose=self.config.verbose)
+        self.scene = MujocoScene(self.server.scene, model)
+        self._build_page()
+        self._show()
+
+    def press(self, name: str) -> None:
+        """What a button does: start, stop (save), discard, and the subclass's own (:meth:`_control`); a control
+        the state does not allow (see the subclass's ``allowed()``) does nothing but say so in the status line."""
+        with self._lock:
+            allowed = self.allowed()
+            if name not in allowed:
+                raise ValueError(f"unknown control {name!r}")
+            if not allowed[name]:
+                self.status_note = f"{self.buttons[name].label}: not now"
+            elif name == "start":
+                self._reset_episode()
+                self.recording = True
+                self.status_note = ""
+            elif name in ("stop", "discard"):
+                self._finish(save=name == "stop")
+            else:
+                self._control(name)
+            self._update_buttons()
+
+    def _control(self, name: str) -> None:
+        """A control of the subclass's own (none here)."""
+        raise ValueError(f"unknown control {name!r}")
+
+    def _update_buttons(self) -> None:
+        """The page's buttons enabled as the subclass's ``allowed()`` says."""
+        allowed = self.allowed()
+        for name, enabled in allowed.items():
+            if self._enabled.get(name) != enabled:  # only changes go over the websocket
+                self.buttons[name].disabled = not enabled
+        self._enabled = allowed
+
+
+    def _start_thread(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="demo-teleop-sim", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            realtime_loop(self, self.env.fps, self._stop)
+        finally:
+            if self._renderer is not None:  # closed in the thread that made its OpenGL context
+                self._renderer.close()
+                self._renderer = None
+
+    def close(self) -> None:
+        """Stop the simulation and the server; an episode being recorded is discarded."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        if self.server is not None:
+            with _quiet(not self.config.verbose):
+                self.server.stop()
+            self.server = None
+        if self.store is not None:
+            # Stopped before a first episode, a store created here goes (abandon: nothing published;
+            # a store appended to keeps what it held): a collection is invisible until it records.
+            if self.saved:
+                self.store.close()
+            else:
+                self.store.abandon()
+            self.store = None
+        self.env.close()
+
+    def __enter__(self) -> "LiveSession":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class TeleopSession(LiveSession):
     """A live teleoperation page and its simulation. ``close()`` stops both (and saves nothing)."""
 
     def __init__(self, config: TeleopConfig, *, run_thread: bool = True):
-        import viser  # deferred: heavy dependency (viser)
-
         if config.mode not in MODES:
             raise DemoError("--mode", f"unknown mode {config.mode!r} (choose from {', '.join(MODES)})")
         if config.ik not in IK_BACKENDS:
@@ -128,18 +235,12 @@ class TeleopSession:
             self.last_ok = True
             self.status_note = ""
             self._reset_episode()
-            with _quiet(not config.verbose):
-                self.server = viser.ViserServer(host=config.host, port=config.port, label=f"demo teleop ({config.mode})",
-                                                verbose=config.verbose)
-            self.scene = MujocoScene(self.server.scene, self.env.model)
-            self._build_page()
-            self._show()
+            self._open_page(f"demo teleop ({config.mode})", self.env.model)
         except BaseException:
             self.close()
             raise
         if run_thread:
-            self._thread = threading.Thread(target=self._run, name="demo-teleop-sim", daemon=True)
-            self._thread.start()
+            self._start_thread()
 
     # ------------------------------------------------------------------ page
     def _build_page(self) -> None:
@@ -217,13 +318,6 @@ class TeleopSession:
                 "close": self.grip != 1.0,
             }
 
-    def _update_buttons(self) -> None:
-        allowed = self.allowed()
-        for name, enabled in allowed.items():
-            if self._enabled.get(name) != enabled:  # only changes go over the websocket
-                self.buttons[name].disabled = not enabled
-        self._enabled = allowed
-
     def _status_text(self) -> str:
         state = f"recording, frame {len(self._frames)}" if self.recording else "idle (press Start to record)"
         ik = {"vr": " · hand reached" if self.last_ok else " · **hand pose unreachable**",
@@ -265,35 +359,9 @@ class TeleopSession:
         self.follower_view.image = self._renderer.render()
 
     # ------------------------------------------------------------------ controls (thread-safe)
-    @property
-    def url(self) -> str:
-        return f"http://{self.server.get_host()}:{self.server.get_port()}"
-
-    @property
-    def port(self) -> int:
-        return int(self.server.get_port())
-
-    def press(self, name: str) -> None:
-        """What a button does: start, stop (save), discard, open, close; a control the state does not
-        allow (see :meth:`allowed`) does nothing but say so in the status line."""
-        with self._lock:
-            allowed = self.allowed()
-            if name not in allowed:
-                raise ValueError(f"unknown control {name!r}")
-            if not allowed[name]:
-                self.status_note = f"{self.buttons[name].label}: not now"
-            elif name == "start":
-                self._reset_episode()
-                self.recording = True
-                self.status_note = ""
-            elif name == "stop":
-                self._finish(save=True)
-            elif name == "discard":
-                self._finish(save=False)
-            else:
-                self.grip = 1.0 if name == "close" else 0.0
-                self.moved |= self.recording
-            self._update_buttons()
+    def _control(self, name: str) -> None:
+        self.grip = 1.0 if name == "close" else 0.0  # the gripper buttons
+        self.moved |= self.recording
 
     def set_hand(self, pos: np.ndarray, quat: np.ndarray) -> None:
         """Move the hand (the gizmo) to a pose in the robot base frame (m, wxyz)."""
@@ -450,54 +518,24 @@ class TeleopSession:
             env.n_substeps = n_sub
             d.qfrc_applied[:] = 0.0
 
-    def _run(self) -> None:
+
+def realtime_loop(session: Any, fps: float, stop: threading.Event) -> None:
+    """``session.step()`` at ``fps`` in real time until ``stop`` is set. An error in a step keeps the page alive and
+    says what went wrong (``session.status_note``, shown by ``session.status`` from ``session._status_text()``)."""
+    dt = 1.0 / fps
+    next_t = time.perf_counter()
+    while not stop.is_set():
         try:
-            self._loop()
-        finally:
-            if self._renderer is not None:
-                self._renderer.close()
-                self._renderer = None
-
-    def _loop(self) -> None:
-        dt = 1.0 / self.env.fps
-        next_t = time.perf_counter()
-        while not self._stop.is_set():
-            try:
-                self.step()
-            except Exception as exc:  # keep the page alive; say what went wrong
-                self.status_note = f"error: {type(exc).__name__}: {exc}"
-                with contextlib.suppress(Exception):
-                    self.status.content = self._status_text()
-            next_t += dt
-            delay = next_t - time.perf_counter()
-            if delay < -0.5:
-                next_t = time.perf_counter()  # fell behind (slow machine): do not race to catch up
-            self._stop.wait(max(0.0, delay))
-
-    def close(self) -> None:
-        """Stop the simulation and the server; an episode being recorded is discarded."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
-        if self.server is not None:
-            with _quiet(not self.config.verbose):
-                self.server.stop()
-            self.server = None
-        if self.store is not None:
-            # Stopped before a first episode, a store created here goes (abandon: nothing published;
-            # a store appended to keeps what it held): a collection is invisible until it records.
-            if self.saved:
-                self.store.close()
-            else:
-                self.store.abandon()
-            self.store = None
-        self.env.close()
-
-    def __enter__(self) -> "TeleopSession":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+            session.step()
+        except Exception as exc:  # keep the page alive; say what went wrong
+            session.status_note = f"error: {type(exc).__name__}: {exc}"
+            with contextlib.suppress(Exception):
+                session.status.content = session._status_text()
+        next_t += dt
+        delay = next_t - time.perf_counter()
+        if delay < -0.5:
+            next_t = time.perf_counter()  # fell behind (slow machine): do not race to catch up
+        stop.wait(max(0.0, delay))
 
 
 def _quiet(enabled: bool) -> Any:

@@ -48,6 +48,20 @@ def expert_actions() -> np.ndarray:
     return data["action"].astype(np.float64)
 
 
+def assert_replays(episode: dict[str, np.ndarray], seed: int) -> None:
+    """A stored episode replays identically: its actions from its seed give the same followers, frame by frame."""
+    env = make_env("env:" + ENV)
+    try:
+        env.reset(seed)
+        replayed = []
+        for a in episode["action"]:
+            replayed.append(env.frame()["obs.agent_pos"])
+            env.step(a)
+    finally:
+        env.close()
+    np.testing.assert_array_equal(np.array(replayed, dtype=np.float32), episode["obs.agent_pos"])
+
+
 def _calibrated_arms(tmp_path: Path) -> str:
     """The pair with a [leader] table on the left arm: its waist read reversed and offset, its gripper 0.2 .. 0.9."""
     left = (ROBOTS / "aloha_vx300s_left.toml").read_text()
@@ -83,17 +97,7 @@ def test_a_leader_file_at_the_control_rate_replays_the_expert_exactly(expert_act
         assert store.meta.action.names[0] == "left.waist"
         np.testing.assert_allclose(episode["action"][:len(expert_actions)], expert_actions, atol=1e-5)
         assert episode["info.ik_ok"].all()
-    # The stored episode replays identically: its actions from its seed give the same followers, frame by frame.
-    env = make_env("env:" + ENV)
-    try:
-        env.reset(SEED)
-        replayed = []
-        for a in episode["action"]:
-            replayed.append(env.frame()["obs.agent_pos"])
-            env.step(a)
-    finally:
-        env.close()
-    np.testing.assert_array_equal(np.array(replayed, dtype=np.float32), episode["obs.agent_pos"])
+    assert_replays(episode, SEED)
     lag = summary["tracking_error_rad"]
     assert set(lag) == {f"{arm}.{j}" for arm in ("left", "right")
                         for j in ("waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate")}

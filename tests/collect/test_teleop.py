@@ -203,10 +203,18 @@ def test_a_leader_session_driven_along_the_experts_targets_picks_the_cube(tmp_pa
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary (apt-get install -y chromium); CI installs it")
 @pytest.mark.parametrize("mode", ["vr", "leader"])
 def test_page_renders_in_headless_chromium(tmp_path: Path, mode: str) -> None:
+    session = TeleopSession(TeleopConfig(mode=mode, task="pick", port=0))
+    try:
+        assert page_drawn(session.url, tmp_path / "teleop.png"), "the 3D view stayed blank"
+    finally:
+        session.close()
+
+
+def page_drawn(url: str, png_path: Path) -> bool:
+    """Whether headless Chromium draws the 3D scene of the page at ``url`` within 45 s (its last screenshot saved)."""
     from PIL import Image
 
-    session = TeleopSession(TeleopConfig(mode=mode, task="pick", port=0))
-    profile = tempfile.mkdtemp(prefix="chromium-", dir=tmp_path)
+    profile = tempfile.mkdtemp(prefix="chromium-", dir=png_path.parent)
     browser = subprocess.Popen(
         [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--use-angle=swiftshader",
          "--enable-unsafe-swiftshader", "--window-size=900,650", "--remote-debugging-port=0",
@@ -230,7 +238,7 @@ def test_page_renders_in_headless_chromium(tmp_path: Path, mode: str) -> None:
                     if reply.get("id") == i:
                         return reply.get("result", {})
 
-            call("Page.navigate", url=session.url)
+            call("Page.navigate", url=url)
             image = None
             end = time.monotonic() + 45.0
             while time.monotonic() < end:
@@ -240,12 +248,11 @@ def test_page_renders_in_headless_chromium(tmp_path: Path, mode: str) -> None:
                 if _scene_drawn(image):
                     break
         assert image is not None
-        (tmp_path / "teleop.png").write_bytes(png)
-        assert _scene_drawn(image), "the 3D view stayed blank"
+        png_path.write_bytes(png)
+        return _scene_drawn(image)
     finally:
         browser.terminate()
         browser.wait(timeout=20)
-        session.close()
 
 
 def _scene_drawn(image: np.ndarray) -> bool:
