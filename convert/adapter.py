@@ -84,6 +84,11 @@ class ActionAdapter:
 def make_adapter(spec: ActionSpec, env: Any, ik_config: IKConfig | None = None) -> ActionAdapter:
     """The adapter executing actions described by ``spec`` on ``env`` (whose actions are ``joint_pos``)."""
     if env.action_spec.name != "joint_pos":
+        arms = (spec.params or {}).get("arms")
+        if arms:  # demo.convert.arms's each arm's ee7
+            raise DemoError("env", f"the policy's actions are each arm's ee7 ({', '.join(arms)}); executing them needs "
+                                   "IK per arm in the environment, which eval does not run: train on the joint-target "
+                                   "store (demo convert --to ee7 --robot ARMS.toml is for exchange and inspection)")
         raise DemoError("env", f"the adapter drives joint_pos environments, not {env.action_spec.name}")
     fmt = reps.parse_spec(spec, "policy action spec", env.robot.arm_joints)
     return ActionAdapter(fmt, env, ik_config)

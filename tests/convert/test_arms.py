@@ -47,6 +47,17 @@ def test_each_arm_s_ee7_replays_as_the_joint_targets_do(scene_store: Path, tmp_p
         assert converted.episode_info(0)["seed"] == source.episode_info(0)["seed"]
 
 
+def test_a_policy_of_each_arm_s_ee7_is_not_run_as_joint_targets(scene_store: Path, tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    out, run = tmp_path / "ee7.zarr", tmp_path / "run"
+    assert main(["convert", str(scene_store), "--to", "ee7", "--robot", ARMS, "--out", str(out)]) == 0
+    assert main(["train", str(out), "--steps", "3", "--batch-size", "8", "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(run), "--episodes", "1"]) != 0
+    err = capsys.readouterr().err
+    assert "each arm's ee7 (left, right)" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
 def test_what_ee7_per_arm_cannot_convert_is_one_line(scene_store: Path, tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
     pick = tmp_path / "pick.zarr"
