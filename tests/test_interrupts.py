@@ -8,6 +8,8 @@ import sys
 import textwrap
 import time
 
+from tests.collect.test_scripted import ctrl_c_reaches
+
 # A command that, after Ctrl-C, runs ENDING: a lock it never gets hangs it, and only the watchdog ends it.
 COMMAND = textwrap.dedent("""
     import sys, threading
@@ -28,7 +30,7 @@ ENDS_ON_CTRL_C = COMMAND.replace("ENDING", "sys.exit(130)")
 
 def _interrupt(code: str) -> tuple[subprocess.CompletedProcess, float]:
     child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             start_new_session=True)
+                             start_new_session=True, preexec_fn=ctrl_c_reaches)
     try:
         assert child.stdout.readline().strip() == "ready"
         t0 = time.monotonic()

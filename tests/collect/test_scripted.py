@@ -84,6 +84,13 @@ def test_interrupt_keeps_finished_episodes(tmp_path: Path, workers: int) -> None
     assert store.verify() == []
 
 
+def ctrl_c_reaches() -> None:
+    """A child's SIGINT at its default (Python's KeyboardInterrupt), whatever this process inherited: a test run
+    started in the background by a shell without job control ignores SIGINT, and its children would too (a
+    process that starts with SIGINT ignored rightly keeps ignoring it), so Ctrl-C would never reach them."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_killed_collect_run_with_workers_ends_quietly(tmp_path: Path, signum: int) -> None:
     """Ctrl-C (SIGINT to the process group; SIGTERM alike) of `demo collect --workers 1`: before, the
@@ -94,7 +101,8 @@ def test_a_killed_collect_run_with_workers_ends_quietly(tmp_path: Path, signum: 
     argv = ["collect", "--task", "pick", "--episodes", "100000", "--workers", "1", "--out", str(out)]
     with open(tmp_path / "stderr", "w") as stderr:  # a file: a pipe nobody reads yet could fill and stall the run
         child = subprocess.Popen([sys.executable, "-m", "demo", *argv], stdout=subprocess.DEVNULL, stderr=stderr,
-                                 start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"})
+                                 start_new_session=True, env={**os.environ, "MUJOCO_GL": "egl"},
+                                     preexec_fn=ctrl_c_reaches)
     try:
         deadline = time.monotonic() + 60  # the worker is running jobs once an episode is stored
         while time.monotonic() < deadline and child.poll() is None:
