@@ -56,7 +56,7 @@ from demo.collect.leader_arms import LeaderArms
 from demo.collect.scripted import CollectConfig, make_env_for, scripted_episode
 from demo.seeds import episode_seed
 from demo.sim import load_robot, make_env
-from demo.sim.arms import load_arms
+from demo.sim.arms import closedness_from_gripper, load_arms
 from demo.sim.foreign import task_name
 from demo.sim.robot import LeaderCalibration
 from demo.sim.geometry import axis_angle_quat, quat_conj, quat_mul
@@ -222,12 +222,11 @@ def leader_arms_rows(actions: np.ndarray, seed: int, fps: float, leaders: Leader
                      rng: np.random.Generator) -> list[list[Any]]:
     """One episode of a several-arm ``LEADER.csv`` from an environment's actions [T, A] (each arm's joint targets,
     rad, then its gripper command): each arm's leader moved along its own targets as :func:`leader_rows` moves one."""
-    open_, closed = gripper_command
     per_arm, start = [], 0
     for arm, cal in zip(leaders.arms.arms, leaders.calibrations):
         n = arm.n_arm
         q = actions[:, start:start + n]
-        closedness = (actions[:, start + n] - open_) / (closed - open_)
+        closedness = closedness_from_gripper(actions[:, start + n], gripper_command)
         path = ScriptedPath(seed, fps, arm.arm_joints, ee_pos=np.zeros((len(q), 3)), ee_quat=np.zeros((len(q), 4)),
                             joint_pos=q, gripper=closedness, joint_command=q)
         per_arm.append(leader_rows(path, cal, profile, rng))

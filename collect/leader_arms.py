@@ -37,7 +37,7 @@ from demo.collect.kinesthetic import LIMIT_TOL, JointTrack, joint_ranges, parse_
 from demo.collect.leader import calibration, tracking_summary
 from demo.errors import DemoError
 from demo.progress import Progress
-from demo.sim.arms import ArmsConfig, load_arms
+from demo.sim.arms import MEASURED_KEY, ArmsConfig, gripper_from_closedness, load_arms
 from demo.sim.foreign import ENV_PREFIX
 from demo.sim.robot import LeaderCalibration
 from demo.sim.rollout import StepCommand, rollout
@@ -70,11 +70,11 @@ class LeaderArms:
         ik_error [K, 2]: (0, rad beyond a joint's range))."""
         readings, grips = resample_joints(track, fps)
         grips = grips.reshape(len(grips), -1)
-        open_, closed = gripper_command
         parts, start = [], 0
         for i, (arm, cal) in enumerate(zip(self.arms.arms, self.calibrations)):
             n = arm.n_arm
-            parts += [cal.follower(readings[:, start:start + n]), (open_ + cal.closedness(grips[:, i]) * (closed - open_))[:, None]]
+            parts += [cal.follower(readings[:, start:start + n]),
+                      gripper_from_closedness(cal.closedness(grips[:, i]), gripper_command)[:, None]]
             start += n
         actions = np.concatenate(parts, axis=1)
         joints = self.arms.joint_dims()
@@ -85,8 +85,9 @@ class LeaderArms:
         return actions.astype(np.float32), (excess <= LIMIT_TOL)[:, None], error.astype(np.float32)
 
     def tracking_lag(self, commanded: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray | None:
-        """Mean |leader at k - follower at k + 1| per follower joint (rad), or None without ``obs.agent_pos``."""
-        measured = data.get("obs.agent_pos")
+        """Mean |leader at k - follower at k + 1| per follower joint (rad), or None without the arms' measured
+        joints (:data:`demo.sim.arms.MEASURED_KEY`)."""
+        measured = data.get(MEASURED_KEY)
         if measured is None or measured.shape[-1] != commanded.shape[-1]:
             return None
         joints = self.arms.joint_dims()

@@ -39,13 +39,12 @@ from demo.convert.representations import EE_ANCHOR_KEY, Anchor, Segments
 from demo.errors import DemoError
 from demo.progress import Progress, Tick, or_silent
 from demo.sim import make_env
-from demo.sim.arms import ArmsConfig, load_arms
+from demo.sim.arms import MEASURED_KEY, ArmsConfig, closedness_from_gripper, gripper_from_closedness, load_arms
 from demo.sim.foreign import is_foreign
 from demo.sim.geometry import angle_between
 from demo.store import ActionSpec, EpisodeStore, FeatureSpec, StoreMeta
 from demo.store.location import same_store, store_path
 
-MEASURED_KEY = "obs.agent_pos"  # the arms' measured joints and grippers, laid out as the action
 
 
 class ArmsEE7:
@@ -77,14 +76,6 @@ class ArmsEE7:
         names = tuple(f"{arm}.{n}" for arm in self.arms.arm_names for n in one.names)
         return FeatureSpec((7 * len(self.arms.arms),), one.dtype, f"each arm's {one.description}", one.units, names)
 
-    def _closedness(self, command: np.ndarray) -> np.ndarray:
-        open_, closed = self.gripper_command
-        return (command - open_) / (closed - open_)
-
-    def _command(self, closedness: np.ndarray) -> np.ndarray:
-        open_, closed = self.gripper_command
-        return open_ + closedness * (closed - open_)
-
     def anchors(self, measured_first: np.ndarray) -> list[Anchor]:
         """Each arm's anchor from the measured joints of every episode's frame 0 ([E, A], laid out as the action)."""
         out = []
@@ -99,7 +90,7 @@ class ArmsEE7:
         parts = []
         for conv, part, anchor in zip(self.to_ee7, self.arms.arm_slices(), anchors):
             arm = action[:, part].astype(np.float64)
-            joint_pos = np.concatenate([arm[:, :-1], self._closedness(arm[:, -1:])], axis=1)
+            joint_pos = np.concatenate([arm[:, :-1], closedness_from_gripper(arm[:, -1:], self.gripper_command)], axis=1)
             parts.append(conv.convert(joint_pos, anchor, seg)[0])
         return np.concatenate(parts, axis=1)
 
@@ -112,7 +103,7 @@ class ArmsEE7:
             warm = measured[:, part][:, :-1].astype(np.float64) if measured is not None else None
             joint_pos, results = conv.convert(ee7[:, 7 * i:7 * (i + 1)], anchor, seg, q_measured=warm)
             failed += sum(int((~r.converged).sum()) for r in results or [])
-            parts.append(np.concatenate([joint_pos[:, :-1], self._command(joint_pos[:, -1:])], axis=1))
+            parts.append(np.concatenate([joint_pos[:, :-1], gripper_from_closedness(joint_pos[:, -1:], self.gripper_command)], axis=1))
         return np.concatenate(parts, axis=1), failed
 
     def tcp(self, measured: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

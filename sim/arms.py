@@ -32,6 +32,10 @@ import numpy as np
 from demo.errors import DemoError
 from demo.sim.robot import RobotConfig, load_robot, read_robot_toml, robot_from_keys
 
+# The observation that holds the arms' measured joints (rad) and grippers, laid out as the action (gym-aloha's
+# ``agent_pos``, each gripper in the environment's command units)
+MEASURED_KEY = "obs.agent_pos"
+
 
 @dataclass(frozen=True)
 class ArmsConfig:
@@ -52,6 +56,10 @@ class ArmsConfig:
         """Indices of the arm joints' dimensions in the action (the grippers' left out), arm after arm."""
         return np.array([i for i, n in enumerate(self.action_names) if not n.endswith(".gripper")])
 
+    def gripper_dims(self) -> np.ndarray:
+        """Indices of the grippers' dimensions in the action, arm after arm."""
+        return np.array([i for i, n in enumerate(self.action_names) if n.endswith(".gripper")])
+
     def arm_slices(self) -> list[slice]:
         """Each arm's dimensions in the action: its joints, then its gripper."""
         out, start = [], 0
@@ -71,6 +79,20 @@ class ArmsConfig:
         if command is None or len(command) != 2 or command[0] == command[1]:
             raise DemoError(where, "does not say its gripper command at open and at closed (gripper_command)")
         return float(command[0]), float(command[1])
+
+
+def gripper_from_closedness(closedness: np.ndarray | float, gripper_command: tuple[float, float]) -> np.ndarray:
+    """A gripper's closedness (0 open .. 1 closed) as the environment's command, given the command at (open, closed)
+    (:meth:`ArmsConfig.check_env`)."""
+    open_, closed = gripper_command
+    return open_ + np.asarray(closedness) * (closed - open_)
+
+
+def closedness_from_gripper(command: np.ndarray | float, gripper_command: tuple[float, float]) -> np.ndarray:
+    """The inverse of :func:`gripper_from_closedness`: the environment's gripper command as closedness (0 open ..
+    1 closed, unclipped)."""
+    open_, closed = gripper_command
+    return (np.asarray(command) - open_) / (closed - open_)
 
 
 def _few(names: list[str]) -> str:

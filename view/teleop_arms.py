@@ -29,14 +29,13 @@ from demo.collect.leader_arms import LeaderArms
 from demo.collect.scripted import make_env_for
 from demo.errors import DemoError
 from demo.seeds import episode_seed
-from demo.sim.arms import load_arms
+from demo.sim.arms import MEASURED_KEY, closedness_from_gripper, gripper_from_closedness, load_arms
 from demo.sim.foreign import task_name
 from demo.sim.robot_model import is_descendant
 from demo.store.output import open_output
 from demo.view.scene import MujocoScene
 from demo.view.teleop import LiveSession
 
-MEASURED_KEY = "obs.agent_pos"  # the followers' joints and grippers, laid out as the action
 FOLLOWER_VIEW = ("top", 120, 160)  # the follower's camera on the page (name, height, width)
 FOLLOWER_VIEW_EVERY = 5  # control steps between two renders of it
 
@@ -183,22 +182,18 @@ class ArmsLeaderSession(LiveSession):
     # ------------------------------------------------------------------ episodes and simulation
     def _action(self) -> np.ndarray:
         """The environment's action from the leaders: joints clipped to their ranges, closedness as gripper command."""
-        open_, closed = self.gripper_command
         action = self.leader.copy()
-        joints = self.arms.joint_dims()
+        joints, grippers = self.arms.joint_dims(), self.arms.gripper_dims()
         action[joints] = np.clip(action[joints], self.leaders.limits[:, 0], self.leaders.limits[:, 1])
-        grippers = np.setdiff1d(np.arange(len(action)), joints)
-        action[grippers] = open_ + np.clip(action[grippers], 0.0, 1.0) * (closed - open_)
+        action[grippers] = gripper_from_closedness(np.clip(action[grippers], 0.0, 1.0), self.gripper_command)
         return action.astype(np.float32)
 
     def _reset_episode(self) -> None:
         self.seed = episode_seed(self.config.seed, self.episode_index)
         self.env.reset(self.seed)
         self.leader = self.env.frame()[MEASURED_KEY].astype(np.float64)  # the leaders start at the followers
-        joints = self.arms.joint_dims()
-        grippers = np.setdiff1d(np.arange(len(self.leader)), joints)
-        open_, closed = self.gripper_command
-        self.leader[grippers] = np.clip((self.leader[grippers] - open_) / (closed - open_), 0.0, 1.0)
+        grippers = self.arms.gripper_dims()
+        self.leader[grippers] = np.clip(closedness_from_gripper(self.leader[grippers], self.gripper_command), 0.0, 1.0)
         self._leader_set = True
         self._frames: list[dict[str, np.ndarray]] = []
         self._first_success: int | None = None
