@@ -13,14 +13,18 @@ Reads top to bottom:
      learned position embeddings; padded chunk steps are masked out of the attention, as ACT's
      ``is_pad``) gives ``mu, logvar`` of the style variable ``z`` from the CLS token;
    - *decoder*: a transformer encoder over ``[z, o_1 .. o_{n_obs}]`` (one token per observation
-     frame; a visuomotor policy's frames carry the cameras' features, :mod:`demo.policies.visuomotor`),
-     then a transformer decoder whose ``horizon`` learned queries attend to that memory and become
-     the chunk ``[H, A]``.
+     frame; a visuomotor policy's frames carry the cameras' features, :mod:`demo.policies.visuomotor`,
+     and each frame becomes one token for the proprioception and one per camera, as ACT keeps its joints
+     and its images apart), then a transformer decoder whose ``horizon`` learned queries attend to that
+     memory and become the chunk ``[H, A]``. The CVAE encoder reads the proprioception only (ACT's).
 
 3. :meth:`ACTPolicy.loss`: L1 between the predicted and the demonstrated chunk on the steps before
    the episode end, plus ``kl_weight`` times the KL divergence of ``N(mu, sigma)`` from ``N(0, I)``
    (summed over the latent dimensions, mean over the batch: ACT's ``kl_divergence``; published
-   weight 10, here 0.01: see :class:`ACTConfig`).
+   weight 10, here 0.01: see :class:`ACTConfig`). From cameras, each sample's proprioception tokens are
+   hidden from the decoder with probability ``state_dropout``: with the joints always in view the
+   transformer fits the demonstrations from them alone and never learns to read the camera (see
+   :class:`ACTConfig`).
 4. :meth:`ACTPolicy.predict`: by default (``latent=commit``) ``z`` drawn from the prior once per
    episode (the rollout generator's next numbers, read without consuming them), so that where ``z``
    carries a mode the whole episode keeps it; ``latent=zero`` is the paper's ``z = 0``, a
@@ -64,6 +68,13 @@ class ACTConfig:
     # averages the sides into the obstacle: 49/100 (z = 0), 51/100 (z sampled). At 0.01: 84/100 (z = 0),
     # 85/100 (commit), 76/100 (z sampled per query: ensembled chunks of different z average the modes).
     kl_weight: float = 0.01
+    # From cameras: in training, each sample's proprioception tokens are hidden from the decoder's attention with
+    # this probability (ignored without cameras). Why: on gym-aloha's transfer cube (50 demos, top camera + joints)
+    # ACT with its joints always in view fitted the chunks from them alone: shuffling the images across a batch
+    # changed its predicted chunks by 0.001 (diffusion's: 0.04), its camera features had collapsed (spread 0.006
+    # against diffusion's 0.23), and it scored 7/100 where diffusion scored 99. The start state holds the cube's
+    # place only in the image. Hiding the joints (0.2 or 0.5) made the camera matter within 200 steps.
+    state_dropout: float = 0.5
     # z at inference: zero (the prior's mean, published) | sample (from the prior, seeded, per query) |
     # commit (one draw from the prior per episode: every query of a rollout uses the same z)
     latent: str = "commit"
@@ -72,6 +83,8 @@ class ACTConfig:
         check_transformer(self.d_model, self.heads, self.dropout, encoder_layers=self.encoder_layers,
                           decoder_layers=self.decoder_layers, vae_layers=self.vae_layers, feedforward=self.feedforward,
                           latent_dim=self.latent_dim)
+        if not 0.0 <= self.state_dropout < 1.0:
+            raise ValueError(f"state_dropout must lie in [0, 1), got {self.state_dropout}")
         if self.kl_weight < 0:
             raise ValueError(f"kl_weight must be >= 0, got {self.kl_weight}")
         if self.latent not in LATENTS:
@@ -104,17 +117,23 @@ class ACTPolicy(Policy):
     def __init__(self, spec: PolicySpec, config: ACTConfig):
         super().__init__(spec, config)
         c, d = config, config.d_model
-        # CVAE encoder: [CLS, observation (current frame), actions]
+        # each frame's vector: the proprioception, then each camera's features (one token each)
+        self.sizes = list(spec.token_dims or (spec.obs_dim,))
+        if sum(self.sizes) != spec.obs_dim:
+            raise ValueError(f"token sizes {self.sizes} do not add up to the observation's {spec.obs_dim} entries")
+        state_dim = self.sizes[0]
+        # CVAE encoder: [CLS, proprioception (current frame), actions]
         self.cls = nn.Parameter(torch.zeros(1, 1, d))
-        self.vae_obs = nn.Linear(spec.obs_dim, d)
+        self.vae_obs = nn.Linear(state_dim, d)
         self.vae_action = nn.Linear(spec.action_dim, d)
         self.vae_pos = nn.Parameter(torch.zeros(1, 2 + spec.horizon, d))
         self.vae = _encoder(c, c.vae_layers)
         self.latent_proj = nn.Linear(d, 2 * c.latent_dim)  # -> mu, logvar
-        # decoder: memory [z, observation frames], then chunk queries
+        # decoder: memory [z, each frame's proprioception and camera tokens], then chunk queries
         self.latent_in = nn.Linear(c.latent_dim, d)
-        self.obs_in = nn.Linear(spec.obs_dim, d)
-        self.memory_pos = nn.Parameter(torch.zeros(1, 1 + spec.n_obs, d))
+        self.obs_in = nn.Linear(state_dim, d)
+        self.camera_in = nn.ModuleList(nn.Linear(n, d) for n in self.sizes[1:])
+        self.memory_pos = nn.Parameter(torch.zeros(1, 1 + spec.n_obs * len(self.sizes), d))
         self.encoder = _encoder(c, c.encoder_layers)
         self.queries = nn.Parameter(torch.zeros(1, spec.horizon, d))
         layer = nn.TransformerDecoderLayer(d, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
@@ -130,25 +149,39 @@ class ACTPolicy(Policy):
     def posterior(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``mu, logvar [B, latent_dim]`` of z given the current frame and the demonstrated chunk."""
         b = action.shape[0]
-        tokens = torch.cat([self.cls.expand(b, -1, -1), self.vae_obs(obs[:, -1:]), self.vae_action(action)], dim=1)
+        state = obs[:, -1:, : self.sizes[0]]
+        tokens = torch.cat([self.cls.expand(b, -1, -1), self.vae_obs(state), self.vae_action(action)], dim=1)
         # CLS and observation are never padded; padded chunk steps are invisible to attention
         pad = torch.cat([torch.zeros(b, 2, dtype=torch.bool, device=action.device), action_pad], dim=1)
         cls = self.vae(tokens + self.vae_pos, src_key_padding_mask=pad)[:, 0]
         mu, logvar = self.latent_proj(cls).chunk(2, dim=-1)
         return mu, logvar
 
-    def decode(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """The chunk ``[B, H, A]`` for ``obs [B, n_obs, D]`` and style ``z [B, latent_dim]``."""
-        b = obs.shape[0]
-        memory = torch.cat([self.latent_in(z).unsqueeze(1), self.obs_in(obs)], dim=1) + self.memory_pos
-        memory = self.encoder(memory)
-        return self.action_out(self.decoder(self.queries.expand(b, -1, -1), memory))
+    def decode(self, obs: torch.Tensor, z: torch.Tensor, hide_state: torch.Tensor | None = None) -> torch.Tensor:
+        """The chunk ``[B, H, A]`` for ``obs [B, n_obs, D]`` and style ``z [B, latent_dim]``; ``hide_state [B]``
+        (bool) hides those samples' proprioception tokens from attention (training's ``state_dropout``)."""
+        b, frames = obs.shape[:2]
+        parts = torch.split(obs, self.sizes, dim=-1)
+        per_frame = torch.stack([self.obs_in(parts[0]), *(embed(part) for embed, part in zip(self.camera_in, parts[1:]))],
+                                dim=2)  # [B, n_obs, tokens per frame, d]
+        memory = torch.cat([self.latent_in(z).unsqueeze(1), per_frame.flatten(1, 2)], dim=1) + self.memory_pos
+        pad = None
+        if hide_state is not None:
+            state_token = torch.zeros(len(self.sizes), dtype=torch.bool, device=obs.device)
+            state_token[0] = True
+            pad = torch.cat([torch.zeros(b, 1, dtype=torch.bool, device=obs.device),
+                             (hide_state[:, None, None] & state_token).expand(b, frames, -1).flatten(1)], dim=1)
+        memory = self.encoder(memory, src_key_padding_mask=pad)
+        return self.action_out(self.decoder(self.queries.expand(b, -1, -1), memory, memory_key_padding_mask=pad))
 
     # ---------------------------------------------------------------- 3. training: L1 + beta KL
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         mu, logvar = self.posterior(obs, action, action_pad)
         z = mu + (0.5 * logvar).exp() * torch.randn_like(mu)  # reparameterisation
-        l1 = masked_mean((self.decode(obs, z) - action).abs(), ~action_pad)
+        hide_state = None
+        if self.training and self.camera_in and self.config.state_dropout > 0:
+            hide_state = torch.rand(obs.shape[0], device=obs.device) < self.config.state_dropout
+        l1 = masked_mean((self.decode(obs, z, hide_state) - action).abs(), ~action_pad)
         kl = (-0.5 * (1 + logvar - mu.square() - logvar.exp())).sum(dim=-1).mean()
         return l1 + self.config.kl_weight * kl
 

@@ -46,6 +46,36 @@ def test_registered_shapes_and_options() -> None:
     assert all(getattr(config, k) == v for k, v in POLICY_DEFAULTS["act"].items())
 
 
+def test_from_cameras_the_joints_and_each_camera_are_tokens_and_training_hides_the_joints() -> None:
+    spec = PolicySpec(obs_dim=5, action_dim=3, n_obs=2, horizon=6, token_dims=(2, 3))  # joints (2), a camera (3)
+    torch.manual_seed(0)
+    policy = build_policy("act", spec, TINY).eval()
+    assert policy.memory_pos.shape[1] == 1 + 2 * 2  # z, then per frame: joints, camera
+    obs, action, pad = batch()
+    z = torch.zeros(8, 8)
+    other_joints = obs.clone()
+    other_joints[..., :2] += 1.0
+    other_camera = obs.clone()
+    other_camera[..., 2:] += 1.0
+    hidden = torch.ones(8, dtype=torch.bool)
+    # joints hidden from attention: the chunk no longer depends on them, and still on the camera
+    assert torch.allclose(policy.decode(obs, z, hidden), policy.decode(other_joints, z, hidden), atol=1e-6)
+    assert not torch.allclose(policy.decode(obs, z, hidden), policy.decode(other_camera, z, hidden), atol=1e-3)
+    assert not torch.allclose(policy.decode(obs, z), policy.decode(other_joints, z), atol=1e-3)
+    # the CVAE encoder reads the joints only (ACT's)
+    assert torch.allclose(policy.posterior(obs, action, pad)[0], policy.posterior(other_camera, action, pad)[0])
+    # training draws which samples' joints to hide: none at 0, so the loss matches the unhidden decode's
+    never = build_policy("act", spec, {**TINY, "state_dropout": 0.0}).train()
+    never.load_state_dict(policy.state_dict())
+    torch.manual_seed(1)
+    with_dropout = policy.train().loss(obs, action, pad).item()
+    torch.manual_seed(1)
+    without = never.loss(obs, action, pad).item()
+    assert with_dropout != pytest.approx(without, abs=1e-6)
+    with pytest.raises(DemoError, match="state_dropout"):
+        build_policy("act", spec, {"state_dropout": 1.0})
+
+
 def test_loss_is_l1_on_unpadded_steps_plus_weighted_kl() -> None:
     torch.manual_seed(0)
     policy = build_policy("act", SPEC, {**TINY, "kl_weight": 0.0}).eval()  # eval: no dropout
@@ -172,7 +202,8 @@ def test_act_behind_image_encoders(tmp_path: Path) -> None:
     assert summary["step"] == 6
     bundle = ckpt.load_bundle(run)
     assert isinstance(bundle.policy, VisuomotorPolicy) and isinstance(bundle.policy.head, ACTPolicy)
-    # the wrapped ACT sees each frame's state and camera features as one observation token
+    # the wrapped ACT sees each frame's state and camera features, a token each
     assert bundle.policy.head.spec.obs_dim == bundle.obs_spec.dim + 8
+    assert bundle.policy.head.sizes == [bundle.obs_spec.dim, 8]
     result = evaluate(EvalConfig(run=str(run), episodes=1, device="cpu"))
     assert result["episodes"] == 1 and result["episodes_detail"][0]["length"] > 0
