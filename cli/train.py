@@ -190,6 +190,9 @@ def train(
         ("steps", summary["step"]),
         ("train loss", summary["train_loss"]),
         ("validation loss", summary["val_loss"] if summary["val_loss"] is not None else "-"),
+        *([("validation loss, images shuffled", f"{summary['val_loss_images_shuffled']:.4g}"
+            + ("" if summary["reads_cameras"] else " [yellow](about the same: the policy does not read its cameras)[/]"))]
+          if "reads_cameras" in summary else []),
         ("expert labels", summary["expert_labels"]),
         ("rollout success", f"{summary['success_rate']:.0%}" if summary["success_rate"] is not None else "- (see demo eval)"),
         ("seconds", f"{summary['seconds']:.1f}"),

@@ -39,6 +39,7 @@ import torch
 from demo.errors import DemoError
 from demo.store import EpisodeStore, WindowSampler
 from demo.store.instructions import episode_instructions
+from demo.store.layout import IMAGE_PREFIX
 from demo.training.config import TrainConfig
 from demo.policies.instruction import INSTRUCTION, InstructionTokenizer, PretrainedText, pretrained_text, text_config
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
@@ -77,6 +78,18 @@ def batch_slice(batch: Batch, start: int, stop: int) -> Batch:
     obs, action, pad = batch
     part = {k: v[start:stop] for k, v in obs.items()} if isinstance(obs, dict) else obs[start:stop]
     return part, action[start:stop], pad[start:stop]
+
+
+def images_shuffled(batch: Batch, seed: int) -> Batch | None:
+    """The batch with every camera's images permuted across its windows (one permutation for all cameras, drawn
+    from ``seed``), the rest unchanged; None for a batch without images. A policy's validation loss on it against
+    the loss on ``batch`` says whether the policy reads its cameras at all: a policy that fits the demonstrations
+    from the joints alone scores the same on both (ACT on gym-aloha's transfer cube did, and failed closed-loop)."""
+    obs, action, pad = batch
+    if not isinstance(obs, dict) or not any(k.startswith(IMAGE_PREFIX) for k in obs):
+        return None
+    order = torch.randperm(len(action), generator=torch.Generator().manual_seed(seed))
+    return {k: v[order] if k.startswith(IMAGE_PREFIX) else v for k, v in obs.items()}, action, pad
 
 
 def batch_to(batch: Batch, device: torch.device) -> Batch:

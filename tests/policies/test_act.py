@@ -195,11 +195,13 @@ def test_act_behind_image_encoders(tmp_path: Path) -> None:
     from demo.policies.visuomotor import VisuomotorPolicy
 
     store = tmp_path / "pick.zarr"
-    collect_scripted(CollectConfig(task="pick", episodes=2, seed=0, cameras=(("front", 24, 24),)), store, workers=0)
+    collect_scripted(CollectConfig(task="pick", episodes=3, seed=0, cameras=(("front", 24, 24),)), store, workers=0)
     run = tmp_path / "run"
     summary = train(TrainConfig(data=str(store), out=str(run), algo="act", steps=6, batch_size=4, chunk=4, log_every=3,
-                                val_every=3, policy=TINY, encoder={"keypoints": 4, "features": 8}))
+                                val_every=3, val_fraction=0.34, policy=TINY, encoder={"keypoints": 4, "features": 8}))
     assert summary["step"] == 6
+    # the camera check: the validation loss again with the images shuffled across the windows
+    assert summary["val_loss_images_shuffled"] > 0 and isinstance(summary["reads_cameras"], bool)
     bundle = ckpt.load_bundle(run)
     assert isinstance(bundle.policy, VisuomotorPolicy) and isinstance(bundle.policy.head, ACTPolicy)
     # the wrapped ACT sees each frame's state and camera features, a token each

@@ -10,7 +10,7 @@ import pytest
 from demo.errors import DemoError
 from demo.store import EpisodeStore
 from demo.training.config import for_policy
-from demo.training.data import TrainingData, Windows, prepare
+from demo.training.data import TrainingData, Windows, images_shuffled, prepare
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.policy import PolicySpec
 
@@ -67,3 +67,22 @@ def test_label_flags_choose_windows_and_pad_unlabelled_steps() -> None:
     assert action[:, :, 0].tolist() == [[1, 2, 3], [6, 7, 8], [9, 9, 9]]
     assert pad.tolist() == [[False, True, True], [False, True, False], [False, True, True]]
     assert data.frames(np.array([0])) == 7
+
+
+def test_images_shuffled_moves_every_cameras_images_together_and_nothing_else() -> None:
+    import torch
+
+    n = 32
+    state = torch.arange(n, dtype=torch.float32)[:, None, None].expand(n, 1, 3)
+    images = {f"obs.image_{cam}": torch.arange(n)[:, None, None, None, None].expand(n, 1, 2, 2, 3) * k
+              for k, cam in ((1, "front"), (2, "wrist"))}
+    action, pad = torch.randn(n, 4, 2), torch.zeros(n, 4, dtype=torch.bool)
+    obs, a, p = images_shuffled(({"state": state, **images}, action, pad), seed=0)
+    order = obs["obs.image_front"][:, 0, 0, 0, 0]
+    assert sorted(order.tolist()) == list(range(n)) and (order != torch.arange(n)).sum() > n // 2  # a permutation
+    assert torch.equal(obs["obs.image_wrist"][:, 0, 0, 0, 0], 2 * order)  # the cameras stay together
+    assert torch.equal(obs["state"], state) and a is action and p is pad  # the joints and labels stay put
+    again, _, _ = images_shuffled(({"state": state, **images}, action, pad), seed=0)
+    assert torch.equal(again["obs.image_front"], obs["obs.image_front"])  # drawn from the seed
+    assert images_shuffled((state, action, pad), seed=0) is None  # a state policy has no cameras to check
+    assert images_shuffled(({"state": state}, action, pad), seed=0) is None
