@@ -104,6 +104,15 @@ def check_transformer(d_model: int, heads: int, dropout: float, **sizes: int) ->
         raise ValueError(f"dropout must lie in [0, 1), got {dropout}")
 
 
+def token_sizes(spec: PolicySpec) -> list[int]:
+    """Widths of one frame's tokens in the observation vector: the proprioception, then each camera's features
+    (``spec.token_dims``, set by :class:`demo.policies.visuomotor.VisuomotorPolicy`), or the whole vector as one."""
+    sizes = list(spec.token_dims or (spec.obs_dim,))
+    if sum(sizes) != spec.obs_dim:
+        raise ValueError(f"token sizes {sizes} do not add up to the observation's {spec.obs_dim} entries")
+    return sizes
+
+
 def _encoder(c: ACTConfig, layers: int) -> nn.TransformerEncoder:
     # Pre-norm: trains without ACT's 1e-5 learning rate at the loop's warm-up + cosine schedule.
     layer = nn.TransformerEncoderLayer(c.d_model, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
@@ -119,9 +128,7 @@ class ACTPolicy(Policy):
         super().__init__(spec, config)
         c, d = config, config.d_model
         # each frame's vector: the proprioception, then each camera's features (one token each)
-        self.sizes = list(spec.token_dims or (spec.obs_dim,))
-        if sum(self.sizes) != spec.obs_dim:
-            raise ValueError(f"token sizes {self.sizes} do not add up to the observation's {spec.obs_dim} entries")
+        self.sizes = token_sizes(spec)
         state_dim = self.sizes[0]
         # CVAE encoder: [CLS, proprioception (current frame), actions]
         self.cls = nn.Parameter(torch.zeros(1, 1, d))

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from demo.policies.act import check_transformer
+from demo.policies.act import check_transformer, token_sizes
 from demo.policies.heads import masked_mean
 from demo.policies.instruction import TEXT_PAD, TEXT_TOKENS
 from demo.policies.observation import STATE
@@ -60,9 +60,7 @@ class TransformerPolicy(Policy):
     def __init__(self, spec: PolicySpec, config: TransformerConfig):
         super().__init__(spec, config)
         c, d = config, config.d_model
-        self.sizes = list(spec.token_dims or (spec.obs_dim,))  # proprioception, then each camera's features
-        if sum(self.sizes) != spec.obs_dim:
-            raise ValueError(f"token sizes {self.sizes} do not add up to the observation's {spec.obs_dim} entries")
+        self.sizes = token_sizes(spec)  # proprioception, then each camera's features
         self.frame_in = nn.ModuleList(nn.Linear(n, d) for n in self.sizes)
         self.kind = nn.Parameter(torch.zeros(len(self.sizes) + 1, d))  # each frame token's kind; the last: words
         self.frame = nn.Parameter(torch.zeros(spec.n_obs, 1, d))
