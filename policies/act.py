@@ -113,6 +113,22 @@ def token_sizes(spec: PolicySpec) -> list[int]:
     return sizes
 
 
+def hide_state_draw(policy: nn.Module, batch: int, p: float, has_cameras: bool, device: torch.device) -> torch.Tensor | None:
+    """Training's ``state_dropout`` draw: ``[batch]`` bool, True for the samples whose proprioception tokens are
+    hidden this step (probability ``p``); None in evaluation, without cameras, or at ``p = 0``."""
+    if not (policy.training and has_cameras and p > 0):
+        return None
+    return torch.rand(batch, device=device) < p
+
+
+def state_token_padding(hide_state: torch.Tensor, frames: int, tokens_per_frame: int) -> torch.Tensor:
+    """The key padding mask ``[B, frames * tokens_per_frame]`` (True: hidden) of frame tokens laid out frame by frame,
+    the proprioception first in each frame: each hidden sample's proprioception tokens, nothing else."""
+    state_token = torch.zeros(tokens_per_frame, dtype=torch.bool, device=hide_state.device)
+    state_token[0] = True
+    return (hide_state[:, None, None] & state_token).expand(-1, frames, -1).flatten(1)
+
+
 def _encoder(c: ACTConfig, layers: int) -> nn.TransformerEncoder:
     # Pre-norm: trains without ACT's 1e-5 learning rate at the loop's warm-up + cosine schedule.
     layer = nn.TransformerEncoderLayer(c.d_model, c.heads, c.feedforward, c.dropout, batch_first=True, norm_first=True)
@@ -175,10 +191,8 @@ class ACTPolicy(Policy):
         memory = torch.cat([self.latent_in(z).unsqueeze(1), per_frame.flatten(1, 2)], dim=1) + self.memory_pos
         pad = None
         if hide_state is not None:
-            state_token = torch.zeros(len(self.sizes), dtype=torch.bool, device=obs.device)
-            state_token[0] = True
             pad = torch.cat([torch.zeros(b, 1, dtype=torch.bool, device=obs.device),
-                             (hide_state[:, None, None] & state_token).expand(b, frames, -1).flatten(1)], dim=1)
+                             state_token_padding(hide_state, frames, len(self.sizes))], dim=1)
         memory = self.encoder(memory, src_key_padding_mask=pad)
         return self.action_out(self.decoder(self.queries.expand(b, -1, -1), memory, memory_key_padding_mask=pad))
 
@@ -186,9 +200,7 @@ class ACTPolicy(Policy):
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         mu, logvar = self.posterior(obs, action, action_pad)
         z = mu + (0.5 * logvar).exp() * torch.randn_like(mu)  # reparameterisation
-        hide_state = None
-        if self.training and self.camera_in and self.config.state_dropout > 0:
-            hide_state = torch.rand(obs.shape[0], device=obs.device) < self.config.state_dropout
+        hide_state = hide_state_draw(self, obs.shape[0], self.config.state_dropout, len(self.camera_in) > 0, obs.device)
         l1 = masked_mean((self.decode(obs, z, hide_state) - action).abs(), ~action_pad)
         kl = (-0.5 * (1 + logvar - mu.square() - logvar.exp())).sum(dim=-1).mean()
         return l1 + self.config.kl_weight * kl
