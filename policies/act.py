@@ -113,10 +113,10 @@ def token_sizes(spec: PolicySpec) -> list[int]:
     return sizes
 
 
-def hide_state_draw(policy: nn.Module, batch: int, p: float, has_cameras: bool, device: torch.device) -> torch.Tensor | None:
+def hide_state_draw(training: bool, batch: int, p: float, tokens_per_frame: int, device: torch.device) -> torch.Tensor | None:
     """Training's ``state_dropout`` draw: ``[batch]`` bool, True for the samples whose proprioception tokens are
-    hidden this step (probability ``p``); None in evaluation, without cameras, or at ``p = 0``."""
-    if not (policy.training and has_cameras and p > 0):
+    hidden this step (probability ``p``); None in evaluation, without cameras (one token per frame), or at ``p = 0``."""
+    if not (training and tokens_per_frame > 1 and p > 0):
         return None
     return torch.rand(batch, device=device) < p
 
@@ -200,7 +200,7 @@ class ACTPolicy(Policy):
     def loss(self, obs: torch.Tensor, action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:
         mu, logvar = self.posterior(obs, action, action_pad)
         z = mu + (0.5 * logvar).exp() * torch.randn_like(mu)  # reparameterisation
-        hide_state = hide_state_draw(self, obs.shape[0], self.config.state_dropout, len(self.camera_in) > 0, obs.device)
+        hide_state = hide_state_draw(self.training, obs.shape[0], self.config.state_dropout, len(self.sizes), obs.device)
         l1 = masked_mean((self.decode(obs, z, hide_state) - action).abs(), ~action_pad)
         kl = (-0.5 * (1 + logvar - mu.square() - logvar.exp())).sum(dim=-1).mean()
         return l1 + self.config.kl_weight * kl

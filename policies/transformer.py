@@ -111,7 +111,8 @@ class TransformerPolicy(Policy):
     # ============================================================================== 3. loss
     def loss(self, obs: torch.Tensor | dict[str, torch.Tensor], action: torch.Tensor,
              action_pad: torch.Tensor) -> torch.Tensor:
-        hide_state = hide_state_draw(self, action.shape[0], self.config.state_dropout, len(self.sizes) > 1, action.device)
+        hide_state = hide_state_draw(self.training, action.shape[0], self.config.state_dropout, len(self.sizes),
+                                     action.device)
         return masked_mean((self(obs, hide_state) - action).square(), ~action_pad)
 
     @torch.no_grad()
