@@ -76,27 +76,43 @@ def checked_action(expert: str, action: Any, shape: tuple[int, ...]) -> np.ndarr
     return a
 
 
+class ForeignExpert:
+    """One episode's expert in a foreign environment, asked as the tasks' experts are: ``act(env)`` is its
+    checked action in whatever state ``env`` is in now (it reads ``env.raw_obs``), so DAgger can label the
+    states a learner drives to. Made right after ``env.reset``; ``ee_target`` is unknown (None)."""
+
+    ee_target = None
+
+    def __init__(self, name: str, env: ForeignEnv):
+        self.name, self.shape, self.t = name, env.gym.action_space.shape, 0
+        try:
+            self.policy = load_expert(name)(env.gym)
+        except DemoError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the user's code: any failure becomes one line naming it
+            raise DemoError(f"--expert {name}", f"raised {type(exc).__name__}: {exc}") from None
+
+    def act(self, env: ForeignEnv) -> np.ndarray:
+        try:
+            action = self.policy(env.raw_obs)
+        except Exception as exc:  # noqa: BLE001 - as above
+            raise DemoError(f"--expert {self.name}", f"raised {type(exc).__name__} at step {self.t}: {exc}") from None
+        self.t += 1
+        return checked_action(self.name, action, self.shape)
+
+
 def foreign_episode(env: ForeignEnv, expert: str, seed: int, noise: float = 0.0, instruction: str | None = None
                     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """One episode of ``expert`` (a name :func:`load_expert` takes) in the foreign environment ``env``
     from ``env.reset(seed)``; ``noise``: std of Gaussian noise on every executed action dimension (DART;
     the recorded label stays the expert's); ``instruction``: what the episode was told (None: the
     environment's own, if any)."""
-    factory = load_expert(expert)
     rng = np.random.default_rng([seed, 1])
     env.reset(seed)
-    try:
-        policy = factory(env.gym)
-    except Exception as exc:  # noqa: BLE001 - the user's code: any failure becomes one line naming it
-        raise DemoError(f"--expert {expert}", f"raised {type(exc).__name__}: {exc}") from None
-    shape = env.gym.action_space.shape
+    policy = ForeignExpert(expert, env)
 
     def act(env: ForeignEnv, frame: dict[str, np.ndarray], t: int) -> StepCommand:
-        try:
-            action = policy(env.raw_obs)
-        except Exception as exc:  # noqa: BLE001 - as above
-            raise DemoError(f"--expert {expert}", f"raised {type(exc).__name__} at step {t}: {exc}") from None
-        label = checked_action(expert, action, shape)
+        label = policy.act(env)
         executed = label + rng.normal(0.0, noise, label.shape).astype(np.float32) if noise > 0 else label
         return StepCommand(executed=executed, label=label)
 

@@ -122,6 +122,7 @@ class AggreVaTe(Family):
     name: str = "aggrevate"
     OPTIONS: ClassVar[tuple[str, ...]] = ("states", "candidates", "sigma", "failure_cost")
     CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
+    FOREIGN: ClassVar[bool] = False  # needs the simulator's state and the task's own expert
     states: int = 10
     candidates: int = 3
     sigma: float = 0.05

@@ -29,12 +29,17 @@ FAMILY: dict[str, Member] = {
 }
 
 
+LEARNERS = ("bc", "act", "diffusion", "flow", "transformer")  # the policies a family member can train (not PPO's)
+
+
 @dataclass
 class DaggerConfig:
     """DAgger's own hyperparameters; ``train`` holds round 0's (and the optimiser's)."""
 
     train: TrainConfig = field(default_factory=TrainConfig)
     task: str | None = setting(None, "The task to roll out (must be the data's).", unset="the data's")
+    # BC's chunked, ensembled MLP unless told; ACT is what reaches gym-aloha's insertion from its camera
+    learner: str = setting("bc", f"The policy the family trains and rolls out: {' | '.join(LEARNERS)}.")
     rounds: int = setting(5, "Rounds of rollouts + aggregation + retraining.")
     episodes_per_round: int = setting(10, "Learner rollouts per round.")
     round_steps: int = setting(2000, "Optimiser steps of the learner trained after each round.")
@@ -89,6 +94,10 @@ class DaggerConfig:
             raise DemoError("--gate", f"{self.gate!r} is not deviation:THRESH with THRESH > 0 (rad)")
         return value
 
+    def check_learner(self) -> None:
+        if self.learner not in LEARNERS:
+            raise DemoError("--learner", f"{self.learner!r} is not an imitation policy (choose from {', '.join(LEARNERS)})")
+
     def check(self) -> None:
         self.train.check()
         if self.rounds < 0:
@@ -99,6 +108,7 @@ class DaggerConfig:
             raise DemoError("--round-steps", f"must be at least 1, got {self.round_steps}")
         self.beta_at(1)
         self.gate_threshold()
+        self.check_learner()
         if self.max_labels is not None and self.max_labels < 1:
             raise DemoError("--max-labels", f"must be at least 1, got {self.max_labels}")
         if self.label_stride is not None and self.label_stride < 1:

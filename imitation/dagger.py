@@ -1,4 +1,4 @@
-"""DAgger (Ross, Gordon & Bagnell 2011) and HG-DAgger (Kelly et al. 2019) with the tasks' experts.
+"""DAgger (Ross, Gordon & Bagnell 2011) and HG-DAgger (Kelly et al. 2019) with the tasks' or foreign experts.
 
 ``demo train DATA --algo dagger --task T --rounds R --episodes-per-round K`` runs :func:`train_dagger`
 (one file of ~500 lines on purpose: the loop every family member shares reads top to bottom, the
@@ -53,8 +53,13 @@ The family: SafeDAgger (:mod:`demo.imitation.safedagger`), AggreVaTe (:mod:`demo
 their own rounds: a :class:`Family` says what round ``r`` rolls out (an episode function, run here or on
 the workers) and what its metrics add (:func:`make_family`; ``demo train --algo NAME``).
 
-The learner is BC's policy with BC's defaults: 16-step chunks executed with temporal ensembling. A
-chunked learner is trained on *chunk labels* (:class:`ChunkLabels`, ``chunk_labels``; on for DAgger,
+On a foreign environment (``demo collect --env ENV --expert EXPERT`` data: gym-aloha, Meta-World) the
+expert that collected the data is asked from the environment's observation (:func:`recorded_expert`,
+:class:`demo.collect.foreign.ForeignExpert`); its state cannot be saved, so the labels are single
+actions (:func:`foreign_family`), and the gate reads grippers by their action names (:class:`ActionParts`).
+
+The learner is BC's policy with BC's defaults, 16-step chunks executed with temporal ensembling
+(``--learner``: another policy, e.g. ACT, with its own defaults). A chunked learner is trained on *chunk labels* (:class:`ChunkLabels`, ``chunk_labels``; on for DAgger,
 off under a gate): at a labelled state the expert's own next ``chunk`` actions, looked ahead in the
 simulator from that state and executing its own actions (:func:`expert_chunk`), at most one every
 ``label_stride`` steps (default: the chunk) and each of its actions counted as a label, so a
@@ -85,6 +90,7 @@ import torch
 from demo.errors import DemoError
 from demo.evaluation.evaluate import make_actor, single_thread
 from demo.executor import ExecutorConfig, ordered_map, session
+from demo.collect.foreign import ForeignExpert
 from demo.imitation.config import FAMILY, DaggerConfig, learner_config
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
@@ -92,6 +98,7 @@ from demo.policies.observation import camera_list, image_keys
 from demo.progress import Progress
 from demo.seeds import dagger_seeds
 from demo.sim import make_env
+from demo.sim.foreign import is_foreign
 from demo.sim.robot_record import resolve_robot
 from demo.sim.rollout import StepCommand, rollout
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
@@ -151,10 +158,25 @@ def rollout_env_args(store: EpisodeStore, task: str | None, robot: str | None = 
     task = task or name
     if not task:
         raise DemoError(store.path, "records no task; pass --task")
+    if is_foreign(task):  # it brings its own robot and cameras; its options rebuild it as it was
+        if robot is not None:
+            raise DemoError("--robot", "a Gymnasium environment brings its own robot")
+        return task, dict(t.get("options") or {})
     features = store.meta.features
     cameras = camera_list((k, features[k].shape) for k in image_keys(features))
     return task, {"robot": resolve_robot(store.meta.robot, robot, where=store.path), "cameras": cameras,
                   **(t.get("options") or {})}
+
+
+def recorded_expert(store: EpisodeStore) -> str:
+    """The expert that collected a foreign environment's demonstrations (``demo collect --expert``, as the
+    store's provenance records it): the one DAgger asks in the states its learner visits."""
+    names = {p.get("expert") for p in store.meta.provenance if p.get("op") == "collect" and p.get("expert")}
+    if len(names) != 1:
+        found = "no expert" if not names else f"several experts ({', '.join(sorted(names))})"
+        raise DemoError(store.path, f"records {found}; DAgger on a foreign environment asks the one expert "
+                                    "that collected the data (demo collect --env ENV --expert EXPERT)")
+    return names.pop()
 
 
 def make_env_for_store(store: EpisodeStore, task: str, env_kwargs: dict[str, Any]) -> Any:
@@ -172,15 +194,39 @@ def make_env_for_store(store: EpisodeStore, task: str, env_kwargs: dict[str, Any
 
 
 # ================================================================================== one round's rollouts
-def deviation(mine: np.ndarray, label: np.ndarray, n_arm: int, gate: float) -> np.ndarray:
-    """How far the learner's actions stray from the expert's (``[..., A]`` each -> ``[...]``, rad): the
-    largest arm joint target difference, raised to ``2 gate`` where the gripper commands differ by more
+@dataclass(frozen=True)
+class ActionParts:
+    """Which dimensions of an action HG-DAgger's gate compares, and how: ``targets`` (joint position
+    targets, rad on an arm; a foreign environment's continuous commands in their own units) by their
+    largest difference, ``grippers`` (commands from 0 to 1) by whether they differ by more than
+    :data:`GRIPPER_GATE`."""
+
+    targets: tuple[int, ...]
+    grippers: tuple[int, ...] = ()
+
+    @classmethod
+    def of(cls, env: Any) -> "ActionParts":
+        """A task's arm joints and its gripper; a foreign environment's action by name: a dimension whose
+        name holds ``gripper`` (gym-aloha's ``left.gripper``, ``right.gripper``) is a gripper, the rest targets."""
+        dim = env.action_spec.dim
+        if env.robot is not None:
+            n_arm = len(env.robot.arm_joints)
+            return cls(tuple(range(n_arm)), tuple(range(n_arm, min(dim, n_arm + 1))))
+        grippers = tuple(i for i, name in enumerate(env.action_spec.names) if "gripper" in name.lower())
+        return cls(tuple(i for i in range(dim) if i not in grippers), grippers)
+
+
+def deviation(mine: np.ndarray, label: np.ndarray, parts: ActionParts, gate: float) -> np.ndarray:
+    """How far the learner's actions stray from the expert's (``[..., A]`` each -> ``[...]``; rad on an
+    arm): the largest target difference, raised to ``2 gate`` where a gripper command differs by more
     than :data:`GRIPPER_GATE`. A gripper the learner leaves open where the expert closes it (or the
     reverse) is straying too, though no arm joint deviates: the stall a supervisor steps in for."""
     mine, label = np.asarray(mine, np.float32), np.asarray(label, np.float32)
-    d = np.abs(mine[..., :n_arm] - label[..., :n_arm]).max(axis=-1)
-    if mine.shape[-1] > n_arm:
-        d = np.where(np.abs(mine[..., n_arm] - label[..., n_arm]) > GRIPPER_GATE, np.maximum(d, 2.0 * gate), d)
+    targets, grippers = list(parts.targets), list(parts.grippers)
+    d = np.abs(mine[..., targets] - label[..., targets]).max(axis=-1)
+    if grippers:
+        wrong = (np.abs(mine[..., grippers] - label[..., grippers]) > GRIPPER_GATE).any(axis=-1)
+        d = np.where(wrong, np.maximum(d, 2.0 * gate), d)
     return d
 
 
@@ -192,11 +238,11 @@ class DeviationGate:
     """HG-DAgger's supervisor for one episode: takes over when :func:`deviation` exceeds ``threshold``
     (rad) and hands back once it is below half of it (hysteresis, as a person would)."""
 
-    def __init__(self, threshold: float, n_arm: int):
-        self.threshold, self.n_arm, self.in_control = threshold, n_arm, False
+    def __init__(self, threshold: float, parts: ActionParts):
+        self.threshold, self.parts, self.in_control = threshold, parts, False
 
     def __call__(self, frame: dict[str, np.ndarray], mine: np.ndarray, label: np.ndarray) -> bool:
-        d = float(deviation(mine, label, self.n_arm, self.threshold))
+        d = float(deviation(mine, label, self.parts, self.threshold))
         self.in_control = d > (self.threshold / 2 if self.in_control else self.threshold)
         return self.in_control
 
@@ -236,24 +282,27 @@ def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.n
     return out
 
 
-def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | Gate | None,
-                   n_arm: int, chunks: ChunkLabels | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | Gate | None, parts: ActionParts,
+                   chunks: ChunkLabels | None = None, expert: str | None = None
+                   ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """One rollout of the mixture policy (``beta``), or of the learner under ``gate`` (a threshold:
     HG-DAgger's :class:`DeviationGate`; or any :data:`Gate`, e.g. SafeDAgger's classifier), every
     visited state labelled by the expert; under a gate only the frames the expert took are labels.
-    ``chunks``: labels are the expert's chunks, at most one every ``chunks.stride`` steps (:class:`ChunkLabels`)."""
+    ``chunks``: labels are the expert's chunks, at most one every ``chunks.stride`` steps (:class:`ChunkLabels`).
+    ``expert``: a foreign environment's expert by name (:class:`demo.collect.foreign.ForeignExpert`; a
+    task's own expert otherwise)."""
     env.reset(seed)
     actor.reset(seed, env)
-    expert = env.expert(rng=np.random.default_rng([seed, 2]))
+    teacher = ForeignExpert(expert, env) if expert else env.expert(rng=np.random.default_rng([seed, 2]))
     mix = np.random.default_rng([seed, 3])
-    decide = DeviationGate(gate, n_arm) if isinstance(gate, (int, float)) else gate
+    decide = DeviationGate(gate, parts) if isinstance(gate, (int, float)) else gate
     labelled: list[bool] = []
     in_control: list[bool] = []
     chunk_labels: list[np.ndarray] = []
     since_chunk = [chunks.stride if chunks else 0]  # steps since the last chunk label
 
     def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
-        label = np.asarray(expert.act(env), dtype=np.float32)
+        label = np.asarray(teacher.act(env), dtype=np.float32)
         mine = np.asarray(actor.act(frame), dtype=np.float32)
         if decide is not None:
             use_expert = bool(decide(frame, mine, label))
@@ -264,12 +313,13 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | G
         if chunks is not None:
             is_label = is_label and since_chunk[0] >= chunks.stride
             since_chunk[0] = 1 if is_label else since_chunk[0] + 1
-            chunk_labels.append(expert_chunk(env, expert, label, chunks.horizon) if is_label
+            chunk_labels.append(expert_chunk(env, teacher, label, chunks.horizon) if is_label
                                 else np.full((chunks.horizon, len(label)), np.nan, np.float32))
         labelled.append(is_label)
         in_control.append(use_expert)
         executed = label if use_expert else mine
-        return StepCommand(executed=executed, label=label, ee_target=np.asarray(expert.ee_target, np.float32))
+        target = None if teacher.ee_target is None else np.asarray(teacher.ee_target, np.float32)
+        return StepCommand(executed=executed, label=label, ee_target=target)
 
     episode = rollout(env, seed, act, reset=False)
     return episode_record(episode, seed, labelled, in_control, beta, chunks=np.stack(chunk_labels) if chunks else None)
@@ -316,11 +366,12 @@ class MixtureEpisodes:
 
     beta: float
     gate: Any  # float | Gate | None
-    n_arm: int
+    parts: ActionParts
     chunks: ChunkLabels | None = None
+    expert: str | None = None  # a foreign environment's expert (module:callable); None: the task's
 
     def __call__(self, env: Any, actor: Any, seed: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        return dagger_episode(env, actor, seed, self.beta, self.gate, self.n_arm, self.chunks)
+        return dagger_episode(env, actor, seed, self.beta, self.gate, self.parts, self.chunks, self.expert)
 
 
 @dataclass
@@ -331,14 +382,19 @@ class Family:
 
     name: str = "dagger"
     chunk_labels: ChunkLabels | None = None  # set by train_dagger for a chunked learner (CHUNK_LABELS members)
+    expert: str | None = None  # set by train_dagger on a foreign environment: the expert that collected the data
     OPTIONS: ClassVar[tuple[str, ...]] = ()  # the fields ``--algo-opt KEY=VALUE`` may set
     CHUNK_LABELS: ClassVar[bool] = True  # whether its rollouts label states with expert chunks (ChunkLabels)
+    # Whether it runs on a foreign environment, whose expert answers from the observation and whose state cannot
+    # be saved and restored: DAgger and HG-DAgger with single-step labels do; the members that need the
+    # simulator's state or the task's own expert (its noise, its cost-to-go) do not.
+    FOREIGN: ClassVar[bool] = True
 
     def episodes(self, run: TrainingRun, store: EpisodeStore, env: Any, r: int, beta: float,
                  gate: float | None) -> EpisodeFn:
         """Round ``r``'s episode function, made when the attached learner is the one that rolls out
         (trained on the data through round ``r - 1``, ``run.data``)."""
-        return MixtureEpisodes(beta, gate, len(env.robot.arm_joints), self.chunk_labels)
+        return MixtureEpisodes(beta, gate, ActionParts.of(env), self.chunk_labels, self.expert)
 
     def round_entry(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
         """What the member adds to round ``r``'s metrics, from its episodes' table rows."""
@@ -440,6 +496,19 @@ def _rollout_run(job: tuple[int, EpisodeFn]) -> tuple[dict[str, np.ndarray], dic
 
 
 # ================================================================================== the run
+def foreign_family(family: Family, config: DaggerConfig, store: EpisodeStore) -> Family:
+    """``family`` set to ask the expert that collected ``store`` (a foreign environment's), or a one-line
+    refusal: a member that needs the simulator's state, or chunk labels (looked ahead from a saved state)."""
+    if not family.FOREIGN:
+        raise DemoError("--algo", f"{family.name} needs a task's simulator and expert; on a foreign environment "
+                                  "run dagger (with --gate deviation:THRESH for HG-DAgger)")
+    if config.uses_chunk_labels() and config.train.chunk > 1:
+        raise DemoError("--chunk-labels", "a foreign environment's state cannot be saved and looked ahead from, so "
+                                          "its labels are single actions: give --gate deviation:THRESH (HG-DAgger) "
+                                          "or --no-chunk-labels")
+    return dataclasses.replace(family, expert=recorded_expert(store))
+
+
 def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None, progress: Progress | None = None,
                  resume: bool = False, overwrite: bool = False, command: str | None = None,
                  family: Family | None = None) -> dict[str, Any]:
@@ -448,7 +517,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
     ``executor``: where the rollouts run (default: in this process; see :func:`round_rollouts`);
     ``family``: the member whose rounds these are (default: DAgger, HG-DAgger with a gate)."""
     family = family or Family()
-    tc = config.train = learner_config(**config.train.given())
+    config.check_learner()
+    tc = config.train = learner_config(**{**config.train.given(), "algo": config.learner})
     config.check()
     executor = executor or ExecutorConfig("process", 1)
     executor.check()
@@ -467,6 +537,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         # a wrong task or robot fails before anything is written; the run's own copy when resuming.
         with EpisodeStore.open(agg_path if resume else source_path) as origin:
             env_args = rollout_env_args(origin, config.task, tc.robot)
+            if is_foreign(env_args[0]):
+                family = foreign_family(family, config, origin)
             env = stack.enter_context(closing(make_env_for_store(origin, *env_args)))
             run.open_directory()
             if not resume:
@@ -482,7 +554,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         stack.enter_context(session(executor))  # one Ray (when used) for every round
         features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY, CHUNK_KEY, HAS_CHUNK_KEY)}
         flagged = INTERVENTION_KEY in store.meta.features  # False in an aggregate made before the flag
-        recorded = {*env.frame().keys(), "action", "info.executed_action", "info.ee_target"}
+        observed = env.features if is_foreign(env_args[0]) else env.frame()  # a foreign one's frame: after a reset
+        recorded = {*observed.keys(), "action", "info.executed_action", "info.ee_target"}
         if features != recorded:
             raise DemoError(source_path, f"records {sorted(features)}; DAgger rollouts record {sorted(recorded)}")
 
@@ -567,7 +640,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
                     **family.round_entry(infos)}
             run.metrics["rounds"].append(last)
             run.checkpoint({"round": r, "round_done": True})
-            run.tick(message=f"round {r}: beta {beta:.2f}, rollout success {last['rollout_success']:.0%}, "
+            mixing = f"gate {gate:g}" if gate is not None else f"beta {beta:.2f}"  # under a gate beta is unused
+            run.tick(message=f"round {r}: {mixing}, rollout success {last['rollout_success']:.0%}, "
                              f"labels {last['labels_round']} (total {last['labels_total']})"
                              + (f", eval success {entry['success_rate']:.0%}" if entry else ""))
 

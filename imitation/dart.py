@@ -73,6 +73,7 @@ class Dart(Family):
     name: str = "dart"
     OPTIONS: ClassVar[tuple[str, ...]] = ("alpha",)
     CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
+    FOREIGN: ClassVar[bool] = False  # needs the simulator's state and the task's own expert
     alpha: float | None = None
     last: dict[str, Any] = field(default_factory=dict)
 

@@ -117,6 +117,7 @@ class Perturb(Family):
     name: str = "perturb"
     OPTIONS: ClassVar[tuple[str, ...]] = ("sigma", "tries")
     CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
+    FOREIGN: ClassVar[bool] = False  # needs the simulator's state and the task's own expert
     sigma: float = 0.05
     tries: int = 5
 

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from demo.errors import DemoError
-from demo.imitation.dagger import Family, MixtureEpisodes, deviation, learner_actions
+from demo.imitation.dagger import ActionParts, Family, MixtureEpisodes, deviation, learner_actions
 from demo.training.data import LABEL_KEY, frame_indices
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import ObsSpec
@@ -107,12 +107,12 @@ class SafeDaggerEpisodes:
 
     classifier: DeviationClassifier
     tau: float
-    n_arm: int
+    parts: ActionParts
 
     def __call__(self, env: Any, actor: Any, seed: int) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        data, info = MixtureEpisodes(0.0, self.classifier, self.n_arm)(env, actor, seed)
+        data, info = MixtureEpisodes(0.0, self.classifier, self.parts)(env, actor, seed)
         drove = ~data[LABEL_KEY].astype(bool)
-        strayed = deviation(data["info.executed_action"][drove], data["action"][drove], self.n_arm, self.tau) > self.tau
+        strayed = deviation(data["info.executed_action"][drove], data["action"][drove], self.parts, self.tau) > self.tau
         info["missed_deviations"] = int(strayed.sum())
         return data, info
 
@@ -125,6 +125,7 @@ class SafeDagger(Family):
     name: str = "safedagger"
     OPTIONS: ClassVar[tuple[str, ...]] = ("hidden", "steps")
     CHUNK_LABELS: ClassVar[bool] = False  # its own labelling: single-step labels
+    FOREIGN: ClassVar[bool] = False  # its rollouts ask the task's own expert (not tried with a foreign one)
     hidden: tuple[int, ...] = (64, 64)
     steps: int = 1000
     last: dict[str, Any] = field(default_factory=dict)  # the latest classifier's fit, for the round's entry
@@ -134,14 +135,14 @@ class SafeDagger(Family):
         if gate is None:
             raise DemoError("--gate", "SafeDAgger needs the deviation its classifier predicts: --gate deviation:TAU (rad)")
         data, bundle = run.data, run.bundle()
-        n_arm = len(env.robot.arm_joints)
+        parts = ActionParts.of(env)
         frames = frame_indices(data.ends, data.val_episodes)
         if data.labelled is not None:
             frames = frames[data.labelled[frames]]
         if len(frames) == 0:
             raise DemoError("--val-fraction", "SafeDAgger fits its classifier on held-out episodes: raise --val-fraction "
                                               "above 0 (e.g. 0.3)")
-        y = deviation(learner_actions(bundle, data, frames), data.action[frames], n_arm, gate) > gate
+        y = deviation(learner_actions(bundle, data, frames), data.action[frames], parts, gate) > gate
         x = data.obs[frames]
         layers = fit_classifier(x, y, self.hidden, self.steps, seed=run.config.seed + 7919 * r)
         classifier = self.classifier = DeviationClassifier(layers, bundle.obs_spec, bundle.obs_norm.low, bundle.obs_norm.high)
@@ -149,7 +150,7 @@ class SafeDagger(Family):
         self.last = {"classifier_frames": int(len(frames)), "classifier_positive_rate": float(y.mean()),
                      "classifier_accuracy": float((fired == y).mean()),
                      "classifier_recall": float(fired[y].mean()) if y.any() else None}
-        return SafeDaggerEpisodes(classifier, gate, n_arm)
+        return SafeDaggerEpisodes(classifier, gate, parts)
 
     def round_entry(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
         return {"takeovers": int(sum(int(i.get("takeovers", 0)) for i in infos)),

@@ -132,7 +132,7 @@ def test_rounds_keep_the_demonstrations_normalisers_unless_refit(demos: Path, tm
 
 def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
     """A learner that moves the arm as the expert does but leaves the gripper wrong is taken over."""
-    from demo.imitation.dagger import dagger_episode
+    from demo.imitation.dagger import ActionParts, dagger_episode
 
     env = make_env("reach", **REACH)
 
@@ -145,8 +145,7 @@ def test_gripper_disagreement_opens_the_hg_dagger_gate() -> None:
             a[-1] = 1.0 - a[-1]
             return a
 
-    n_arm = len(env.robot.arm_joints)
-    data, info = dagger_episode(env, ArmOnly(), seed=5, beta=0.0, gate=0.05, n_arm=n_arm)
+    data, info = dagger_episode(env, ArmOnly(), seed=5, beta=0.0, gate=0.05, parts=ActionParts.of(env))
     flags = data[LABEL_KEY].astype(bool)
     assert flags.all() and info["labels"] == len(flags)
 
@@ -172,7 +171,7 @@ def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None
     """A chunked learner's labels (ChunkLabels): the chunk at a visited state is what the expert executes from
     there (at the reset state: the start of the expert's own episode), one every ``stride`` steps, each of its
     actions counted; looking ahead leaves the rollout exactly as it was."""
-    from demo.imitation.dagger import ChunkLabels, dagger_episode
+    from demo.imitation.dagger import ActionParts, ChunkLabels, dagger_episode
     from demo.sim.rollout import run_expert
     from demo.training.data import CHUNK_KEY, HAS_CHUNK_KEY
 
@@ -187,9 +186,9 @@ def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None
             a[:-1] = 0.5 * (a[:-1] + frame["obs.joint_pos"])
             return a
 
-    n_arm = len(env.robot.arm_joints)
-    plain, _ = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, n_arm=n_arm)
-    data, info = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, n_arm=n_arm, chunks=ChunkLabels(8, 4))
+    parts = ActionParts.of(env)
+    plain, _ = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, parts=parts)
+    data, info = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, parts=parts, chunks=ChunkLabels(8, 4))
     for key in set(plain) - {LABEL_KEY}:  # the same rollout, bit for bit; the labels are the difference
         np.testing.assert_array_equal(plain[key], data[key], err_msg=key)
     has = data[HAS_CHUNK_KEY].astype(bool)

@@ -11,7 +11,7 @@ import torch
 from demo.errors import DemoError
 from demo.store import EpisodeStore
 from demo.training.config import TrainConfig
-from demo.imitation.dagger import INTERVENTION_KEY, DaggerConfig, deviation, train_dagger
+from demo.imitation.dagger import INTERVENTION_KEY, ActionParts, DaggerConfig, deviation, train_dagger
 from demo.training.data import LABEL_KEY
 from demo.imitation.safedagger import SafeDagger, fit_classifier
 
@@ -44,7 +44,7 @@ def test_deviation_is_hg_daggers_rule() -> None:
     mine = label.copy()
     mine[1, 2] = 0.08  # an arm joint 0.08 rad off
     mine[2, 7] = 1.0  # the gripper the other way
-    d = deviation(mine, label, 7, 0.05)
+    d = deviation(mine, label, ActionParts(tuple(range(7)), (7,)), 0.05)
     assert d[0] == 0 and np.isclose(d[1], 0.08) and d[2] >= 0.1
 
 
