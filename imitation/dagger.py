@@ -99,6 +99,7 @@ from demo.progress import Progress
 from demo.seeds import dagger_seeds
 from demo.sim import make_env
 from demo.sim.foreign import is_foreign
+from demo.sim.foreign_set import set_members
 from demo.sim.robot_record import resolve_robot
 from demo.sim.rollout import StepCommand, rollout
 from demo.store import EpisodeStore, FeatureSpec, StoreMeta
@@ -496,9 +497,13 @@ def _rollout_run(job: tuple[int, EpisodeFn]) -> tuple[dict[str, np.ndarray], dic
 
 
 # ================================================================================== the run
-def foreign_family(family: Family, config: DaggerConfig, store: EpisodeStore) -> Family:
-    """``family`` set to ask the expert that collected ``store`` (a foreign environment's), or a one-line
-    refusal: a member that needs the simulator's state, or chunk labels (looked ahead from a saved state)."""
+def foreign_family(family: Family, config: DaggerConfig, store: EpisodeStore, task: str) -> Family:
+    """``family`` set to ask the expert that collected ``store`` (a foreign environment's, ``task``), or a
+    one-line refusal: a task set, a member that needs the simulator's state, or chunk labels (looked ahead
+    from a saved state)."""
+    if set_members(task):
+        raise DemoError(store.path, "holds a task set (one environment per episode); DAgger rolls out in one "
+                                    "environment: collect one task per store")
     if not family.FOREIGN:
         raise DemoError("--algo", f"{family.name} needs a task's simulator and expert; on a foreign environment "
                                   "run dagger (with --gate deviation:THRESH for HG-DAgger)")
@@ -538,7 +543,7 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         with EpisodeStore.open(agg_path if resume else source_path) as origin:
             env_args = rollout_env_args(origin, config.task, tc.robot)
             if is_foreign(env_args[0]):
-                family = foreign_family(family, config, origin)
+                family = foreign_family(family, config, origin, env_args[0])
             env = stack.enter_context(closing(make_env_for_store(origin, *env_args)))
             run.open_directory()
             if not resume:
