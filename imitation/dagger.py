@@ -59,17 +59,17 @@ expert that collected the data is asked from the environment's observation (:fun
 actions (:func:`foreign_family`), and the gate reads grippers by their action names (:class:`ActionParts`).
 
 The learner is BC's policy with BC's defaults, 16-step chunks executed with temporal ensembling
-(``--learner``: another policy, e.g. ACT, with its own defaults). A chunked learner is trained on *chunk labels* (:class:`ChunkLabels`, ``chunk_labels``; on for DAgger,
-off under a gate): at a labelled state the expert's own next ``chunk`` actions, looked ahead in the
-simulator from that state and executing its own actions (:func:`expert_chunk`), at most one every
-``label_stride`` steps (default: the chunk) and each of its actions counted as a label, so a
-rollout step costs one label as before. The single-step labels at the states a learner visits next
-are answers in states the expert would not have reached, and a window of them is not the plan a
-chunked learner is trained to predict (pick from 10 demos, 5 rounds x 10 rollouts: 5/100 with such
-windows, 46/100 with chunk labels). Under HG-DAgger's gate the labels are the expert's own
-consecutive actions while it is in control, which already are its plan: dense single-step labels
-there (96/100 at 2,322 labels; chunk labels every 16 steps: 87/100).
-Everything else of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
+(``--learner``: another policy, e.g. ACT, with its own defaults). A chunked learner is trained on *chunk
+labels* (:class:`ChunkLabels`, ``chunk_labels``; on for DAgger, off under a gate): at a labelled state
+the expert's own next ``chunk`` actions, looked ahead in the simulator from that state and executing its
+own actions (:func:`expert_chunk`), at most one every ``label_stride`` steps (default: the chunk) and
+each of its actions counted as a label, so a rollout step costs one label as before. The single-step
+labels at the states a learner visits next are answers in states the expert would not have reached, and
+a window of them is not the plan a chunked learner is trained to predict (pick from 10 demos, 5 rounds x
+10 rollouts: 5/100 with such windows, 46/100 with chunk labels). Under HG-DAgger's gate the labels are
+the expert's own consecutive actions while it is in control, which already are its plan: dense
+single-step labels there (96/100 at 2,322 labels; chunk labels every 16 steps: 87/100). Everything else
+of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
 :class:`demo.training.trainer.TrainingRun`'s; this file holds only what is DAgger's own.
 """
 
@@ -87,10 +87,10 @@ from typing import Any, Callable, ClassVar
 import numpy as np
 import torch
 
+from demo.collect.foreign import ForeignExpert
 from demo.errors import DemoError
 from demo.evaluation.evaluate import make_actor, single_thread
 from demo.executor import ExecutorConfig, ordered_map, session
-from demo.collect.foreign import ForeignExpert
 from demo.imitation.config import FAMILY, DaggerConfig, learner_config
 from demo.policies import checkpoint as ckpt
 from demo.policies.actor import ExecConfig
