@@ -85,10 +85,9 @@ class ForeignExpert:
 
     def __init__(self, name: str, env: ForeignEnv):
         self.name, self.shape, self.t = name, env.gym.action_space.shape, 0
+        factory = load_expert(name)  # a bad name fails here, in its own words
         try:
-            self.policy = load_expert(name)(env.gym)
-        except DemoError:
-            raise
+            self.policy = factory(env.gym)
         except Exception as exc:  # noqa: BLE001 - the user's code: any failure becomes one line naming it
             raise DemoError(f"--expert {name}", f"raised {type(exc).__name__}: {exc}") from None
 

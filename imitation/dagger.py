@@ -559,8 +559,7 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         stack.enter_context(session(executor))  # one Ray (when used) for every round
         features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY, CHUNK_KEY, HAS_CHUNK_KEY)}
         flagged = INTERVENTION_KEY in store.meta.features  # False in an aggregate made before the flag
-        observed = env.features if is_foreign(env_args[0]) else env.frame()  # a foreign one's frame: after a reset
-        recorded = {*observed.keys(), "action", "info.executed_action", "info.ee_target"}
+        recorded = {*env.features, "action", "info.executed_action", "info.ee_target"}
         if features != recorded:
             raise DemoError(source_path, f"records {sorted(features)}; DAgger rollouts record {sorted(recorded)}")
 
