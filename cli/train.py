@@ -113,7 +113,8 @@ def train(
     policy_opt: list[str] = typer.Option([], "--policy-opt", metavar="KEY=VALUE", help="Policy option (repeatable), e.g. hidden=512,512.",
                                          show_default="none"),
     text_opt: list[str] = typer.Option([], "--text-opt", metavar="KEY=VALUE", help="Instruction encoder option "
-                                       "(repeatable): dim, layers, heads, dropout, film (BC on state: FiLM, else appended), film_images "
+                                       "(repeatable): dim, layers, heads, dropout, film (BC's MLP: FiLM, else appended), film_image_head "
+                                       "(from cameras: FiLM BC's MLP as on state, default false), film_images "
                                        "(from cameras: FiLM the image encoders too); init=RUN "
                                        "starts from an earlier instruction-conditioned run's tokenizer and encoder, "
                                        "freeze=true keeps it as it is.", show_default="none"),

@@ -16,10 +16,10 @@ piece here is trained from scratch on this machine (nothing is downloaded):
 - :class:`InstructedPolicy`: any policy told the instruction's vector, trained end to end on the
   wrapped policy's own loss. BC's MLP on state takes it by FiLM (RT-1's conditioning): every hidden
   layer's activations scaled and shifted by a linear function of it, so that the words can *select*
-  what the layer passes on (which of three cubes to go to). Other policies (diffusion, flow, ACT, image
-  policies) get it appended to the low-dim observation of every history frame; a policy from cameras
-  with ``film_images`` also FiLMs each camera's feature maps by it (RT-1's image encoder,
-  :class:`demo.policies.encoders.CameraEncoder`).
+  what the layer passes on (which of three cubes to go to); behind camera encoders it does so with
+  ``film_image_head``. Other policies (diffusion, flow, ACT, and BC from cameras by default) get it appended
+  to the low-dim observation of every history frame; a policy from cameras with ``film_images`` also FiLMs
+  each camera's feature maps by it (RT-1's image encoder, :class:`demo.policies.encoders.CameraEncoder`).
 
 Observations reach it as a dict: the wrapped policy's observation (the low-dim vector, or the
 visuomotor dict) plus :data:`INSTRUCTION` -> ``[B, max_tokens]`` int64 token ids (0-padded).
@@ -113,9 +113,12 @@ class TextConfig:
     # A policy that takes a condition (BC's MLP on state) is told the vector by FiLM in its hidden layers;
     # false: appended to its observation, as every other policy is
     film: bool = True
-    # A policy from cameras: FiLM its image encoders' feature maps by the vector too (RT-1's design; the vector
-    # is appended to the low-dim observation either way)
+    # A policy from cameras: FiLM its image encoders' feature maps by the vector too (RT-1's design)
     film_images: bool = False
+    # A policy from cameras whose head takes a condition (BC's MLP): with film, FiLM the head's hidden layers by
+    # the vector as on state; false: the vector is appended to the proprioception. Off by default: on pick's
+    # coloured cubes from two cameras it made no difference (1/100 against 6/100, both ignoring the words)
+    film_image_head: bool = False
     # A pretrained encoder on disk: the run directory of an instruction-conditioned policy, whose tokenizer
     # and text encoder (its dim, layers and heads too) start this one (:func:`pretrained_text`)
     init: str = ""
@@ -136,7 +139,7 @@ def text_config(options: TextConfig | dict[str, Any] | None) -> TextConfig:
     unknown = sorted(set(options or {}) - set(fields))
     if unknown:
         raise ValueError(f"the text encoder has no option {', '.join(unknown)} (options: {', '.join(fields)})")
-    values = {k: (float(v) if k == "dropout" else _flag(v) if k in ("film", "film_images", "freeze") else str(v) if k == "init" else int(v))
+    values = {k: (float(v) if k == "dropout" else _flag(v) if k in ("film", "film_images", "film_image_head", "freeze") else str(v) if k == "init" else int(v))
               for k, v in (options or {}).items()}
     return TextConfig(**values)
 
@@ -177,9 +180,9 @@ class TextEncoder(nn.Module):
 
 class InstructedPolicy(Policy):
     """A wrapped policy told the instruction's vector: by FiLM in its hidden layers where it takes a
-    condition (``film``: BC's MLP on state), else appended to every frame's low-dim observation, and with
-    ``film_images`` by FiLM in its image encoders as well; a policy that reads tokens (``tokens``: the
-    transformer) is given the encoder's per-word outputs instead."""
+    condition (``film``: BC's MLP, on state or behind cameras), else appended to every frame's low-dim
+    observation, and with ``film_images`` by FiLM in its image encoders as well; a policy that reads tokens
+    (``tokens``: the transformer) is given the encoder's per-word outputs instead."""
 
     def __init__(self, spec: PolicySpec, config: Any, text: TextConfig, build: Callable[[PolicySpec], Policy],
                  film: bool = False, film_images: bool = False, tokens: bool = False):
@@ -187,10 +190,10 @@ class InstructedPolicy(Policy):
         self.text_config = text
         self.film, self.film_images, self.tokens = film, film_images, tokens
         self.text = TextEncoder(spec.vocab, spec.max_tokens, text)
-        inner: dict[str, int] = (dict(text_dim=text.dim) if tokens else dict(cond_dim=text.dim) if film
+        inner: dict[str, Any] = (dict(text_dim=text.dim) if tokens else dict(cond_dim=text.dim) if film
                                  else dict(obs_dim=spec.obs_dim + text.dim))
         if film_images:  # the image encoders take it too (demo.policies.encoders.CameraEncoder)
-            inner["cond_dim"] = text.dim
+            inner.update(cond_dim=text.dim, film_cameras=True, film_head=film)
         self.inner = build(dataclasses.replace(spec, vocab=0, max_tokens=0, **inner))
         self.name = self.inner.name
 
@@ -206,11 +209,10 @@ class InstructedPolicy(Policy):
             return {**{k: v for k, v in obs.items() if k != INSTRUCTION}, TEXT_TOKENS: x[row].to(state.dtype),
                     TEXT_PAD: pad[row]}
         words = self.text(unique)[row].to(state.dtype)
-        if self.film:
-            return {STATE: state, CONDITION: words}
-        state = torch.cat([state, words[:, None, :].expand(-1, state.shape[1], -1)], dim=-1)
+        if not self.film:
+            state = torch.cat([state, words[:, None, :].expand(-1, state.shape[1], -1)], dim=-1)
         rest = {k: v for k, v in obs.items() if k not in (STATE, INSTRUCTION)}
-        if self.film_images:
+        if self.film or self.film_images:
             rest[CONDITION] = words
         return {STATE: state, **rest} if rest else state
 

@@ -57,10 +57,14 @@ class PolicySpec:
     # token), and the width of the instruction's per-word tokens a policy that ``takes_tokens`` reads (0 = none).
     token_dims: tuple[int, ...] = ()
     text_dim: int = 0
+    # A policy from cameras given a condition: whether its encoders FiLM their feature maps by it, and whether
+    # its head (when it ``takes_condition``) FiLMs its hidden layers by it (demo.policies.visuomotor).
+    film_cameras: bool = False
+    film_head: bool = True
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items()
-                             if k not in ("images", "token_dims", "text_dim")}
+                             if k not in ("images", "token_dims", "text_dim", "film_cameras", "film_head")}
         if self.images:  # recorded only when set: state runs read as before
             d["images"] = [list(i) for i in self.images]
         if not self.vocab:
@@ -175,7 +179,7 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
         from demo.policies.instruction import InstructedPolicy, text_config  # deferred: cycle (it imports this module)
 
         text = text_config(text)
-        film = cls.takes_condition and not spec.images and text.film
+        film = cls.takes_condition and text.film and (text.film_image_head or not spec.images)
         return InstructedPolicy(spec, config, text, lambda inner: build_policy(name, inner, config, encoder), film,
                                 bool(spec.images) and text.film_images, cls.takes_tokens)
     if spec.images:

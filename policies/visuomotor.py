@@ -44,11 +44,14 @@ class VisuomotorPolicy(Policy):
         self.name = head.name
         self.encoder_config = encoder
         self.keys = [key for key, _, _ in spec.images]
-        # spec.cond_dim > 0: the encoders FiLM their feature maps by the observation's CONDITION (an instruction's)
-        self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder, spec.cond_dim)
+        # Given a condition (spec.cond_dim > 0: an instruction's, the observation's CONDITION), the encoders FiLM
+        # their feature maps by it (spec.film_cameras), and a head that takes one its hidden layers (spec.film_head)
+        self.cameras = nn.ModuleDict({key[len(IMAGE_PREFIX):]: CameraEncoder(h, w, encoder, spec.cond_dim if spec.film_cameras else 0)
                                       for key, h, w in spec.images})
+        self.head_condition = bool(spec.cond_dim) and spec.film_head and head.takes_condition
         head_spec = dataclasses.replace(spec, obs_dim=spec.obs_dim + len(self.keys) * encoder.features, images=(),
-                                        cond_dim=0, token_dims=(spec.obs_dim, *[encoder.features] * len(self.keys)))
+                                        cond_dim=spec.cond_dim if self.head_condition else 0,
+                                        token_dims=(spec.obs_dim, *[encoder.features] * len(self.keys)))
         self.head = head(head_spec, config)
 
     def encode(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -76,6 +79,8 @@ class VisuomotorPolicy(Policy):
         fused = self.encode(obs)
         if TEXT_TOKENS in obs:
             return {STATE: fused, TEXT_TOKENS: obs[TEXT_TOKENS], TEXT_PAD: obs[TEXT_PAD]}
+        if self.head_condition:
+            return {STATE: fused, CONDITION: obs[CONDITION]}
         return fused
 
     def loss(self, obs: dict[str, torch.Tensor], action: torch.Tensor, action_pad: torch.Tensor) -> torch.Tensor:

@@ -112,7 +112,7 @@ def test_a_residual_corrects_a_pixel_policy(store: Path, tmp_path: Path) -> None
     assert result["episodes"] == 1
 
 
-def test_instructions_film_the_image_encoders_on_request(tmp_path: Path) -> None:
+def test_instructions_film_the_image_encoders_and_the_mlp_on_request(tmp_path: Path) -> None:
     """--text-opt film_images=true: coloured cubes from cameras, the instruction FiLMs each camera's feature maps
     (identity at initialisation, recorded, loaded back); without it the encoders take no condition."""
     from demo.policies.instruction import CONDITION
@@ -142,3 +142,17 @@ def test_instructions_film_the_image_encoders_on_request(tmp_path: Path) -> None
     assert CONDITION in film.policy.condition(obs) and film.policy.predict(obs).shape[-1] == film.action.dim
     result = evaluate(EvalConfig(run=str(tmp_path / "film"), episodes=1, device="cpu"))
     assert result["episodes"] == 1
+
+    # By default the words reach BC's MLP behind the cameras appended to the proprioception; with
+    # film_image_head=true they FiLM its hidden layers as on state
+    assert not plain.policy.film and plain.policy.inner.head.film is None
+    train(tiny(path, tmp_path / "head", text={"dim": 16, "heads": 2, "film_image_head": True}))
+    headed = ckpt.load_bundle(tmp_path / "head")
+    assert headed.run["policy"]["text"]["film_image_head"] is True
+    assert headed.policy.film and headed.policy.inner.head_condition and headed.policy.inner.head.film is not None
+    assert plain.policy.inner.head.spec.obs_dim == headed.policy.inner.head.spec.obs_dim + 16  # appended, or not
+    other = {**obs, "instruction": torch.from_numpy(headed.tokenizer.encode(["pick up the blue cube"]))}
+    with torch.no_grad():
+        for f in headed.policy.inner.head.film:
+            f.weight.normal_()
+        assert not torch.allclose(headed.policy.predict(obs), headed.policy.predict(other))  # the words reach the MLP
