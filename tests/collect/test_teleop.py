@@ -57,10 +57,16 @@ class ViserWireClient:
             self.messages += msgspec.msgpack.decode(inner)["messages"]
 
     def find(self, kind: str, **match: Any) -> dict[str, Any]:
-        for m in self.messages:
-            if m["type"] == kind and all(_get(m, k) == v for k, v in match.items()):
-                return m
-        raise AssertionError(f"no {kind} {match} among {len(self.messages)} messages")
+        """The first message of ``kind`` matching ``match``, pumping for up to 30 s until it arrives (a loaded
+        machine sends the GUI late)."""
+        end = time.monotonic() + 30.0
+        while True:
+            for m in self.messages:
+                if m["type"] == kind and all(_get(m, k) == v for k, v in match.items()):
+                    return m
+            if time.monotonic() > end:
+                raise AssertionError(f"no {kind} {match} among {len(self.messages)} messages")
+            self.pump(0.5)
 
     def camera(self) -> None:
         self.send(vm.ViewerCameraMessage(
@@ -95,7 +101,7 @@ def connected(config: TeleopConfig) -> Iterator[tuple[TeleopSession, ViserWireCl
 def save(session: TeleopSession, client: ViserWireClient) -> None:
     """Click Stop & save, and wait for the episode to be stored."""
     client.click("Stop & save")
-    assert _wait_until(lambda: session.saved == 1, 5.0)
+    assert _wait_until(lambda: session.saved == 1, 30.0)
 
 
 def _get(message: dict[str, Any], dotted: str) -> Any:
