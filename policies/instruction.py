@@ -139,8 +139,8 @@ def text_config(options: TextConfig | dict[str, Any] | None) -> TextConfig:
     unknown = sorted(set(options or {}) - set(fields))
     if unknown:
         raise ValueError(f"the text encoder has no option {', '.join(unknown)} (options: {', '.join(fields)})")
-    values = {k: (float(v) if k == "dropout" else _flag(v) if k in ("film", "film_images", "film_image_head", "freeze") else str(v) if k == "init" else int(v))
-              for k, v in (options or {}).items()}
+    kinds = {name: type(value) for name, value in dataclasses.asdict(TextConfig()).items()}  # each option's type, by its default
+    values = {k: _flag(v) if kinds[k] is bool else kinds[k](v) for k, v in (options or {}).items()}
     return TextConfig(**values)
 
 

@@ -114,7 +114,8 @@ def test_a_residual_corrects_a_pixel_policy(store: Path, tmp_path: Path) -> None
 
 def test_instructions_film_the_image_encoders_and_the_mlp_on_request(tmp_path: Path) -> None:
     """--text-opt film_images=true: coloured cubes from cameras, the instruction FiLMs each camera's feature maps
-    (identity at initialisation, recorded, loaded back); without it the encoders take no condition."""
+    (identity at initialisation, recorded, loaded back); without it the encoders take no condition. And
+    film_image_head=true: it FiLMs BC's MLP behind the encoders, which otherwise gets it appended."""
     from demo.policies.instruction import CONDITION
 
     path = tmp_path / "colours.zarr"
