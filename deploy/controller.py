@@ -5,7 +5,14 @@ control step it was taken at, whenever no request is in flight, and files the an
 waits for it. Each control step executes the merge of every chunk that covers the step
 (:class:`ChunkMerger`: a chunk answering the observation of step ``s`` holds actions for steps
 ``s .. s + H - 1``; overlapping ones are averaged with ACT's weights ``exp(-m * age)``, the oldest
-heaviest), so a slow answer only means the older chunks carry on. Then :class:`Safety`: joint
+heaviest), so a slow answer only means the older chunks carry on. The robot holds still until the episode's
+first chunk arrives, and that chunk starts at the step it is first used (the state it answered is the state
+the robot still holds): executed from ``s``, it would start ``d`` steps into a motion the robot never made,
+and each later chunk would correct the last one's jump, late (``demo bench delay`` on ``pick``, state BC, a
+6-step delay: 0/100 anchored at ``s``, 94/100 anchored at its arrival). For a policy trained to continue a committed
+prefix (:mod:`demo.policies.prefix`), each request carries the merged actions already planned for the
+steps until its answer is expected (the recent round trips, plus a step), and the answer continues them.
+Then :class:`Safety`: joint
 targets within the joint limits, at most ``max_joint_step`` rad from the last command per step,
 the gripper within [0, 1], and the end effector at those targets inside the workspace box (scene
 frame, m; else the arm holds its last command); no chunk covering the step, or an observation older
@@ -44,24 +51,54 @@ class ControlConfig:
 class ChunkMerger:
     """Chunks by the control step of the observation they answer."""
 
-    def __init__(self, ensemble: float):
+    def __init__(self, ensemble: float, anchor: bool = True):
         self.ensemble = ensemble
+        # Whether an episode's first chunk starts at the step it is first used (module docstring); False: at the
+        # step of the observation it answered, like every other (kept to measure the difference)
+        self.anchor = anchor
         self.chunks: deque[tuple[int, np.ndarray]] = deque()
         self.lock = threading.Lock()
+        self.anchored = not anchor  # whether the episode's first chunk has been used (and started then)
+
+    def reset(self) -> None:
+        """A new episode: no chunks; the first to come starts at the step it is first used."""
+        with self.lock:
+            self.chunks.clear()
+            self.anchored = not self.anchor
 
     def add(self, start: int, chunk: np.ndarray) -> None:
         with self.lock:
             self.chunks.append((start, chunk))
 
     def action(self, t: int) -> np.ndarray | None:
-        """The merged action for step ``t``, or None when no chunk covers it."""
+        """The merged action to execute at step ``t``, or None when no chunk covers it."""
         with self.lock:
+            if not self.anchored and self.chunks:  # the robot held still until now (module docstring)
+                self.chunks[0] = (t, self.chunks[0][1])
+                self.anchored = True
             self.chunks = deque((s, c) for s, c in self.chunks if s + len(c) > t)  # drop the spent ones
-            covering = [c[t - s] for s, c in self.chunks if s <= t]
+        return self.planned(t)
+
+    def planned(self, t: int) -> np.ndarray | None:
+        """The merged action the chunks filed so far give step ``t`` (now or ahead; nothing is dropped), or None
+        where none covers it."""
+        with self.lock:
+            covering = [c[t - s] for s, c in self.chunks if s <= t < s + len(c)]
         if not covering:
             return None
         w = np.exp(-self.ensemble * np.arange(len(covering)))
         return (w[:, None] * np.stack(covering)).sum(axis=0) / w.sum()
+
+    def committed(self, t: int, steps: int) -> np.ndarray | None:
+        """``[d, A]``: the merged actions planned for steps ``t .. t + d - 1``, ``d <= steps`` up to the first step
+        no chunk covers (the prefix a policy that continues one is told, :mod:`demo.policies.prefix`); None for none."""
+        planned = []
+        for k in range(steps):
+            action = self.planned(t + k)
+            if action is None:
+                break
+            planned.append(action)
+        return np.asarray(planned) if planned else None
 
 
 class ChunkRequester:
@@ -73,7 +110,8 @@ class ChunkRequester:
         except OSError as exc:
             raise DemoError(url, f"cannot connect to the policy server ({exc})") from None
         self.merger, self.network_s = merger, network_s
-        self.pending: tuple[int, float, dict[str, np.ndarray]] | None = None
+        self.pending: tuple[int, float, dict[str, np.ndarray], np.ndarray | None] | None = None
+        self.prefix_steps = 0  # committed actions the served policy continues (the server says, at reset)
         self.wake = threading.Condition()
         self.busy = False
         self.latencies: list[float] = []  # s, observation sent -> chunk filed
@@ -87,14 +125,15 @@ class ChunkRequester:
             while self.busy:
                 self.wake.wait()
             self.ws.send(encode({"type": "reset", "seed": int(seed)}))
-            decode(self.ws.recv())
+            self.prefix_steps = int(decode(self.ws.recv()).get("prefix_steps", 0))
 
-    def submit(self, step: int, t_obs: float, frame: dict[str, np.ndarray]) -> bool:
-        """Ask for a chunk from this observation unless a request is in flight; whether it was sent."""
+    def submit(self, step: int, t_obs: float, frame: dict[str, np.ndarray], prefix: np.ndarray | None = None) -> bool:
+        """Ask for a chunk from this observation unless a request is in flight; whether it was sent. ``prefix``
+        ``[d, A]``: the actions already committed for steps ``step .. step + d - 1``."""
         with self.wake:
             if self.busy:
                 return False
-            self.pending, self.busy = (step, t_obs, frame), True
+            self.pending, self.busy = (step, t_obs, frame, prefix), True
             self.wake.notify_all()
             return True
 
@@ -111,13 +150,16 @@ class ChunkRequester:
                     self.wake.wait()
                 if self.closed:
                     return
-                step, t_obs, frame = self.pending
+                step, t_obs, frame, prefix = self.pending
                 self.pending = None
             sent = time.perf_counter()
             try:
                 time.sleep(self.network_s)
-                self.ws.send(encode({"type": "obs", "seq": step, "t_obs": t_obs,
-                                     "frame": {k: pack_array(np.asarray(v)) for k, v in frame.items()}}))
+                message = {"type": "obs", "seq": step, "t_obs": t_obs,
+                           "frame": {k: pack_array(np.asarray(v)) for k, v in frame.items()}}
+                if prefix is not None:
+                    message["prefix"] = pack_array(np.asarray(prefix, np.float32))
+                self.ws.send(encode(message))
                 answer = decode(self.ws.recv())
                 time.sleep(self.network_s)
                 if answer["type"] == "error":
@@ -130,6 +172,12 @@ class ChunkRequester:
             with self.wake:
                 self.busy = False
                 self.wake.notify_all()
+
+    def steps_ahead(self, period: float) -> int:
+        """Control steps until an answer to a request sent now is expected: the slowest of the last few round
+        trips, plus one step (the answer is used at the first tick after it is filed)."""
+        recent = self.latencies[-5:]
+        return int(np.ceil(max(recent) / period)) + 1 if recent else 0
 
     def close(self) -> None:
         with self.wake:
@@ -184,7 +232,7 @@ def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: C
     """One episode of ``robot`` (:class:`demo.deploy.sim_robot.SimRobot`) under the real-time loop."""
     merger = requester.merger
     requester.reset(seed)  # waits for an answer still in flight, then files nothing more of the last episode
-    merger.chunks.clear()
+    merger.reset()
     robot.episode(seed)
     period = 1.0 / config.rate_hz
     step, t_obs, obs = robot.latest_obs
@@ -201,9 +249,13 @@ def run_episode(robot: Any, requester: ChunkRequester, safety: Safety, config: C
         if config.synchronous:
             requester.submit(step, t_obs, obs)
             requester.wait()
+            action = merger.action(step)
         else:
-            requester.submit(step, t_obs, obs)
-        action = merger.action(step)  # the robot applies it to the state of ``step``, at its next tick
+            action = merger.action(step)  # the robot applies it to the state of ``step``, at its next tick
+            prefix = None
+            if requester.prefix_steps and not requester.busy:
+                prefix = merger.committed(step, min(requester.prefix_steps, requester.steps_ahead(period)))
+            requester.submit(step, t_obs, obs, prefix)
         if action is None or time.time() - t_obs > config.stale_obs_s:
             stalls += 1
             command = last

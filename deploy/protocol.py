@@ -3,9 +3,12 @@
 Arrays travel as ``[dtype, shape, raw bytes]`` (little-endian, C order), so a 64x64 camera image costs
 its 12 KiB and no base64. Messages, client to server:
 
-- ``{"type": "reset", "seed": int}``: a new episode (clears the observation history);
-- ``{"type": "obs", "seq": int, "t_obs": float, "frame": {key: array}}``: an observation taken at
-  ``t_obs`` (the client's clock, s), answered by
+- ``{"type": "reset", "seed": int}``: a new episode (clears the observation history), answered by
+  ``{"type": "ready", "prefix_steps": int}`` (how many committed actions the policy continues,
+  :mod:`demo.policies.prefix`; 0: it ignores them);
+- ``{"type": "obs", "seq": int, "t_obs": float, "frame": {key: array}[, "prefix": array [d, A]]}``: an
+  observation taken at ``t_obs`` (the client's clock, s), with the actions already committed for its step
+  and the ``d - 1`` after it, answered by
   ``{"type": "chunk", "seq": int, "t_obs": float, "chunk": array [H, A] float32, "infer_ms": float}``.
 
 Errors come back as ``{"type": "error", "problem": str}``.

@@ -94,7 +94,7 @@ class PolicyServer:
     def _answer(self, actor: Any, message: dict[str, Any]) -> dict[str, Any]:
         if message["type"] == "reset":
             actor.reset(int(message.get("seed", 0)))
-            return {"type": "ready"}
+            return {"type": "ready", "prefix_steps": self.bundle.policy.spec.prefix}
         if message["type"] != "obs":
             raise ValueError(f"unknown message type {message['type']!r}")
         frame = {k: unpack_array(v) for k, v in message["frame"].items()}
@@ -106,9 +106,15 @@ class PolicyServer:
                 raise ValueError(f"{key} is {tuple(frame[key].shape)}, the policy reads {tuple(shape)}")
             if not np.isfinite(frame[key]).all():
                 raise ValueError(f"{key} holds non-finite values")
+        prefix = None
+        if "prefix" in message:  # actions the robot has committed to (demo.policies.prefix)
+            prefix = unpack_array(message["prefix"])
+            if prefix.ndim != 2 or prefix.shape[1] != self.bundle.action.dim or not np.isfinite(prefix).all():
+                raise ValueError(f"the prefix must be finite [steps, {self.bundle.action.dim}] actions, got shape "
+                                 f"{tuple(prefix.shape)}")
         start = time.perf_counter()
         with self.lock, torch.inference_mode():
-            chunk = actor.chunk(frame)
+            chunk = actor.chunk(frame, prefix)
         if self.config.delay_s:
             time.sleep(self.config.delay_s)
         return {"type": "chunk", "seq": message["seq"], "t_obs": message["t_obs"], "chunk": pack_array(chunk),

@@ -44,6 +44,7 @@ from demo.policies.instruction import INSTRUCTION, InstructionTokenizer
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import Policy
+from demo.policies.prefix import PREFIX, PREFIX_STEPS
 from demo.policies.relative import RelativeActions
 from demo.policies.residual import Residual
 
@@ -131,15 +132,22 @@ class PolicyActor:
         self.last_query = -(10**9)
         self.generator.manual_seed(int(seed) & 0x7FFF_FFFF_FFFF_FFFF)
 
-    def _query(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+    def _query(self, frame: dict[str, np.ndarray], committed: np.ndarray | None = None) -> np.ndarray:
         k = self.execution.candidates
         state = np.clip(self.obs_norm.normalize(np.stack(self.history)), -OBS_CLIP, OBS_CLIP)[None]  # [1, n_obs, D]
         obs: torch.Tensor | dict[str, torch.Tensor] = torch.from_numpy(np.repeat(state, k, axis=0)).to(self.device)
-        if self.images or self.tokens is not None:
+        if self.images or self.tokens is not None or committed is not None:
             obs = {STATE: obs, **{key: torch.from_numpy(np.repeat(np.stack(h)[None], k, axis=0)).to(self.device)
                                   for key, h in self.images.items()}}
         if self.tokens is not None:
             obs[INSTRUCTION] = torch.from_numpy(np.repeat(self.tokens, k, axis=0)).to(self.device)
+        if committed is not None:  # the policy's own representation: relative to this frame, normalised
+            if self.relative is not None:
+                committed = committed - self.relative.base_frame(frame, committed.shape[1])
+            given = np.zeros((self.policy.spec.prefix, committed.shape[1]), np.float32)
+            given[: len(committed)] = self.action_norm.normalize(committed)
+            obs[PREFIX] = torch.from_numpy(np.repeat(given[None], k, axis=0)).to(self.device)
+            obs[PREFIX_STEPS] = torch.full((k,), len(committed), dtype=torch.long, device=self.device)
         with torch.inference_mode():
             chunks = self.action_norm.unnormalize(self.policy.predict(obs, generator=self.generator).float().cpu().numpy())
         self.queries += 1
@@ -167,11 +175,24 @@ class PolicyActor:
             for key, h in self.images.items():
                 h.append(frame[key])
 
-    def chunk(self, frame: dict[str, np.ndarray]) -> np.ndarray:
+    def chunk(self, frame: dict[str, np.ndarray], prefix: np.ndarray | None = None) -> np.ndarray:
         """``[H, A]``: the policy's chunk from this frame (its own representation, absolute), for an executor
-        that runs chunks itself (a robot-side client of :mod:`demo.deploy`); ``frame`` joins the history."""
+        that runs chunks itself (a robot-side client of :mod:`demo.deploy`); ``frame`` joins the history.
+
+        ``prefix [d, A]``: the actions the executor has already committed to for this frame's step and the
+        ``d - 1`` after it (absolute). A policy trained to continue them (:mod:`demo.policies.prefix`) is told
+        up to its ``spec.prefix`` of them and its chunk starts with them; another ignores them."""
         self._observe(frame)
-        return self._query(frame).astype(np.float32)
+        allowed = self.policy.spec.prefix
+        committed = None
+        if prefix is not None and allowed and len(prefix):
+            committed = np.asarray(prefix, np.float32).reshape(len(prefix), -1)[:allowed]
+            if committed.shape[1] != self.action_norm.dim:
+                raise ValueError(f"the prefix has {committed.shape[1]} action dims, the policy's actions {self.action_norm.dim}")
+        chunk = self._query(frame, committed).astype(np.float32)
+        if committed is not None:
+            chunk[: len(committed)] = committed
+        return chunk
 
     def policy_action(self, frame: dict[str, np.ndarray]) -> np.ndarray:
         """The policy's action for this frame (its own representation); advances one step."""

@@ -47,6 +47,7 @@ from demo.policies.instruction import InstructionTokenizer, text_record
 from demo.policies.normalizer import MinMaxNormalizer
 from demo.policies.observation import ObsSpec
 from demo.policies.policy import Policy, PolicySpec, build_policy, config_to_json, policy_config
+from demo.policies.prefix import unwrapped
 from demo.policies.relative import RelativeActions
 from demo.policies.residual import Residual, load_residual
 from demo.policies.visuomotor import encoder_record
@@ -96,7 +97,8 @@ def policy_record(
     relative: RelativeActions | None = None, tokenizer: InstructionTokenizer | None = None,
 ) -> dict[str, Any]:
     """The part of run.json that rebuilds the policy."""
-    encoder, text = encoder_record(getattr(policy, "inner", policy)), text_record(policy)
+    base = unwrapped(policy)  # behind a committed prefix's wrapper
+    encoder, text = encoder_record(getattr(base, "inner", base)), text_record(base)
     return {
         "algo": algo,
         "config": config_to_json(policy.config),

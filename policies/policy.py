@@ -52,6 +52,9 @@ class PolicySpec:
     # A conditioning vector per sample (the instruction's) that a policy taking one (``takes_condition``)
     # modulates its hidden layers with (FiLM); 0 = none.
     cond_dim: int = 0
+    # Committed actions the policy is told at the start of its chunk (demo.policies.prefix: asynchronous execution
+    # under inference delay); 0 = none.
+    prefix: int = 0
     # Set by a wrapper for the policy inside it (never recorded; the wrapper derives them again):
     # how one frame's vector splits into tokens (the low-dim part, then each camera's features; () = one
     # token), and the width of the instruction's per-word tokens a policy that ``takes_tokens`` reads (0 = none).
@@ -69,8 +72,9 @@ class PolicySpec:
             d["images"] = [list(i) for i in self.images]
         if not self.vocab:
             del d["vocab"], d["max_tokens"]
-        if not self.cond_dim:
-            del d["cond_dim"]
+        for key in ("cond_dim", "prefix"):
+            if not d[key]:  # recorded only when set: runs without it read as before
+                del d[key]
         return d
 
     @classmethod
@@ -171,10 +175,15 @@ def build_policy(name: str, spec: PolicySpec, config: Any = None, encoder: Any =
     """Policy ``name`` for ``spec``; with camera images in ``spec``, behind image encoders configured
     by ``encoder`` (an :class:`demo.policies.encoders.EncoderConfig`, a dict of its fields, or None);
     with a vocabulary in ``spec``, conditioned on instructions by a text encoder configured by ``text``
-    (a :class:`demo.policies.instruction.TextConfig`, a dict of its fields, or None)."""
+    (a :class:`demo.policies.instruction.TextConfig`, a dict of its fields, or None); with ``spec.prefix``,
+    told the chunk's committed first actions (:mod:`demo.policies.prefix`), outermost."""
     cls = policy_class(name)
     if config is None or isinstance(config, dict):
         config = policy_config(name, config)
+    if spec.prefix:
+        from demo.policies.prefix import CommittedPrefixPolicy  # deferred: cycle (it imports this module)
+
+        return CommittedPrefixPolicy(spec, config, lambda inner: build_policy(name, inner, config, encoder, text))
     if spec.vocab:
         from demo.policies.instruction import InstructedPolicy, text_config  # deferred: cycle (it imports this module)
 

@@ -164,6 +164,11 @@ class TrainConfig:
     ensemble: bool | None = setting(None, "Temporal ensembling of overlapping chunks (ACT).", resume=False)
     candidates: int | None = setting(None, "Chunks a sampling policy draws per query at execution, the one most coherent "
                                            "with the chunk before kept (1 = off; demo.policies.actor).", resume=False)
+    # A policy served to a robot that executes asynchronously (demo serve): told up to this many committed actions at
+    # the start of its chunk, so that a late answer continues what the robot already does (demo.policies.prefix)
+    prefix_steps: int = setting(0, "Train the policy to continue up to this many committed actions at the start of "
+                                   "its chunk, for asynchronous execution under inference delay (demo serve; "
+                                   "0 = off; less than --chunk).")
     # ---- the same for every policy
     ensemble_decay: float = setting(0.01, "Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01).", resume=False)
     min_lr_ratio: float = setting(0.01, "The cosine schedule decays to this fraction of --lr.")
@@ -226,6 +231,8 @@ class TrainConfig:
                 raise DemoError(f"--{name.replace('_', '-')}", f"must be at least 1, got {value}")
         if self.execute > self.chunk:
             raise DemoError("--execute", f"cannot exceed --chunk ({self.chunk}), got {self.execute}")
+        if self.prefix_steps and not 0 < self.prefix_steps < self.chunk:
+            raise DemoError("--prefix-steps", f"must lie in [0, --chunk={self.chunk}), got {self.prefix_steps}")
         if not 0 <= self.val_fraction < 1:
             raise DemoError("--val-fraction", f"must lie in [0, 1), got {self.val_fraction}")
         if not 0 <= self.ema < 1:

@@ -482,6 +482,42 @@ def bench_realtime(
                 "results": results}, json_out)
 
 
+@bench_app.command("delay")
+def bench_delay(
+    run: Path = typer.Argument(..., metavar="RUN", help="A trained run (its task is simulated)."),
+    delays: str = typer.Option("0,2,4,6,8,10", help="Inference delays in control steps, comma-separated (0: the "
+                               "reference, every answer in time)."),
+    episodes: int = typer.Option(100, help="Episodes per delay."),
+    anchor: bool = typer.Option(True, "--anchor/--no-anchor", help="Start an episode's first chunk when it is first "
+                                "executed (the client's rule); --no-anchor: at its observation's step."),
+    prefix: bool = typer.Option(True, "--prefix/--no-prefix", help="Send the committed actions to a policy trained "
+                                "with --prefix-steps (others ignore them)."),
+    ensemble: float = typer.Option(0.01, "--ensemble", metavar="M", help="Weight exp(-M age) of overlapping chunks, "
+                                   "oldest first (ACT: 0.01)."),
+    seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
+    json_out: str = json_option(default="-"),
+) -> None:
+    """Asynchronous chunk execution with the inference delay counted in control steps, simulated without a clock (demo.deploy.delayed): success per delay, in seconds rather than demo bench realtime's minutes."""
+    from demo.deploy.delayed import DelayConfig, run_delayed  # deferred: torch and MuJoCo
+
+    try:
+        steps = [int(d) for d in delays.split(",") if d.strip()]
+    except ValueError:
+        raise DemoError("--delays", f"{delays!r} is not a comma-separated list of whole control steps") from None
+    if not steps or min(steps) < 0:
+        raise DemoError("--delays", f"{delays!r}: give one or more delays >= 0")
+    results = []
+    with bars() as progress:
+        for d in steps:
+            results.append(run_delayed(DelayConfig(str(run), d, episodes, seed, ensemble, anchor, prefix), progress))
+    rows = [[str(r["delay_steps"]), f"{r['successes']}/{r['episodes']}", f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}",
+             str(r["prefix_steps"])] for r in results]
+    report_console(json_out).print(table(f"bench delay: {run} (asynchronous, first chunk anchored "
+                                         f"{'when used' if anchor else 'at its observation'})",
+                                         ["delay (control steps)", "success", "95% CI", "committed steps told"], rows))
+    write_json({"run": str(run), "anchor": anchor, "ensemble": ensemble, "results": results}, json_out)
+
+
 @bench_app.command("serve")
 def bench_serve(
     policies: str = typer.Option(",".join(("bc", "act", "diffusion")), help="Comma-separated policies to train a few "

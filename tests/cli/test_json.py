@@ -112,6 +112,7 @@ SKIPS = {
                     "tests/training/test_trainer.py runs it with --json FILE and reads it",
     "bench realtime": "needs a trained run and runs real-time episodes; tests/deploy/test_realtime.py runs it with "
                       "--json FILE and reads it",
+    "bench delay": "needs a trained run; tests/deploy/test_realtime.py runs it with --json FILE and reads it",
     "bench peer-gail": "needs the imitation library, installed in its own venv only (README); "
                        "tests/experiments/test_peer_gail.py runs it "
                        "in miniature there with --json FILE",

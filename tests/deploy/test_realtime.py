@@ -54,6 +54,25 @@ def test_chunks_merge_with_acts_weights_and_expire() -> None:
     assert m.action(6) is None
 
 
+def test_the_first_chunk_starts_when_it_is_first_used() -> None:
+    """The robot held still until the episode's first answer came: that chunk starts at the step it is first
+    executed, not at the step of the observation it answered; looking ahead (``planned``) moves nothing."""
+    m = ChunkMerger(ensemble=0.01)
+    m.add(0, np.arange(16.0)[:, None])
+    assert m.planned(3)[0] == 3.0  # the chunk as filed: step 3 is its fourth action
+    assert m.action(5)[0] == 0.0  # first executed at step 5: its first action
+    assert m.action(6)[0] == 1.0 and m.planned(8)[0] == 3.0
+    assert m.planned(40) is None and m.planned(7)[0] == 2.0  # looking past a chunk's end drops nothing
+    committed = m.committed(6, 30)  # what the robot will do from step 6 until no chunk covers a step (step 21)
+    np.testing.assert_array_equal(committed[:, 0], np.arange(1.0, 16.0))
+    assert m.committed(21, 3) is None
+    m.add(4, np.full((16, 1), 100.0))  # the next answers step 4's observation and is merged as filed
+    assert 1.0 < m.action(7)[0] < 100.0
+    m.reset()
+    m.add(30, np.arange(16.0)[:, None])
+    assert m.action(40)[0] == 0.0  # a new episode anchors its own first chunk
+
+
 def test_safety_keeps_limits_and_speed() -> None:
     safety = Safety(np.array([[-1.0, 1.0], [-1.0, 1.0]]), max_joint_step=0.1)
     out = safety(np.array([5.0, -0.05, 1.7]), last=np.array([0.95, 0.0, 0.0]))
@@ -111,6 +130,47 @@ def test_the_server_answers_the_policys_own_chunk(run: Path) -> None:
         ChunkRequester(server.url, ChunkMerger(0.01))
 
 
+def test_the_server_continues_a_committed_prefix_and_refuses_a_malformed_one(run: Path) -> None:
+    """A policy trained with --prefix-steps says so at reset and starts its chunk with the robot's committed
+    actions; a prefix of the wrong width is a one-line error in the log and the connection keeps serving. An
+    ordinary policy says 0 and ignores a prefix."""
+    prefixed = run.parent / "prefixed"
+    if not prefixed.exists():
+        assert main(["train", str(run.parent / "pick.zarr"), "--steps", "300", "--prefix-steps", "4",
+                     "--out", str(prefixed)]) == 0
+    env = make_env("pick")
+    frame = {k: pack_array(v) for k, v in env.reset(3).items()}
+    env.close()
+    committed = np.tile(np.r_[np.linspace(0.1, 0.7, 7), 0.0].astype(np.float32), (6, 1))
+    for path, steps in ((prefixed, 4), (run, 0)):
+        lines: list[str] = []
+        server = PolicyServer(ServerConfig(str(path), port=0), log=lines.append).start()
+        try:
+            with connect(server.url) as ws:
+                ws.send(encode({"type": "reset", "seed": 0}))
+                assert decode(ws.recv())["prefix_steps"] == steps
+                ws.send(encode({"type": "obs", "seq": 0, "t_obs": 0.0, "frame": frame}))
+                plain = unpack_array(decode(ws.recv())["chunk"])
+                ws.send(encode({"type": "reset", "seed": 0}))
+                decode(ws.recv())
+                ws.send(encode({"type": "obs", "seq": 0, "t_obs": 0.0, "frame": frame, "prefix": pack_array(committed)}))
+                told = unpack_array(decode(ws.recv())["chunk"])
+                if steps:
+                    np.testing.assert_array_equal(told[:steps], committed[:steps])
+                    assert np.abs(told[steps:] - plain[steps:]).max() > 1e-4
+                else:
+                    np.testing.assert_array_equal(told, plain)
+                ws.send(encode({"type": "obs", "seq": 1, "t_obs": 0.0, "frame": frame,
+                                "prefix": pack_array(committed[:, :3])}))
+                answer = decode(ws.recv())
+                assert answer["type"] == "error" and "the prefix must be finite [steps, 8]" in answer["problem"]
+                ws.send(encode({"type": "obs", "seq": 2, "t_obs": 0.0, "frame": frame}))
+                assert decode(ws.recv())["type"] == "chunk"  # still serving
+        finally:
+            server.close()
+        assert any("the prefix must be finite" in line for line in lines) and all("\n" not in x for x in lines)
+
+
 def test_the_loop_in_real_time_with_late_answers(run: Path) -> None:
     fast = run_realtime(RealtimeConfig(str(run), episodes=3, control=ControlConfig(network_s=0.01)))
     assert fast["episodes"] == 3 and fast["successes"] >= 1
@@ -133,6 +193,27 @@ def test_bench_realtime_writes_every_delay(run: Path, tmp_path: Path) -> None:
     results = json.loads(out.read_text())["results"]
     assert [r["inference_delay_ms"] for r in results] == [0.0, 100.0] and all(r["episodes"] == 1 for r in results)
     assert results[1]["round_trip_ms"]["median"] > results[0]["round_trip_ms"]["median"] + 80
+
+
+def test_without_delay_the_simulated_client_is_demo_eval(run: Path, tmp_path: Path) -> None:
+    """``demo bench delay``'s client at delay 0 asks for a chunk every step and merges them with ACT's weights, as
+    ``demo eval`` executes the run: the same episodes, step for step. With a delay the episodes change, and the same
+    seed replays them exactly."""
+    from demo.deploy.delayed import DelayConfig, run_delayed
+    from demo.evaluation.evaluate import EvalConfig, evaluate
+
+    reference = evaluate(EvalConfig(run=str(run), episodes=4, device="cpu"))
+    now = run_delayed(DelayConfig(str(run), delay_steps=0, episodes=4))
+    assert now["successes"] == reference["successes"]
+    assert now["episode_lengths"] == [d["length"] for d in reference["episodes_detail"]]
+    late = run_delayed(DelayConfig(str(run), delay_steps=5, episodes=4))
+    assert late["episode_lengths"] != now["episode_lengths"]
+    out = tmp_path / "delay.json"
+    assert main(["bench", "delay", str(run), "--delays", "5", "--episodes", "4", "--json", str(out)]) == 0
+    import json
+
+    assert json.loads(out.read_text())["results"][0]["episode_lengths"] == late["episode_lengths"]
+    assert main(["bench", "delay", str(run), "--delays", "-1"]) != 0
 
 
 def test_demo_serve_listens_on_loopback(run: Path) -> None:
