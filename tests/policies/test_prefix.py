@@ -104,3 +104,39 @@ def test_a_prefix_as_long_as_the_chunk_is_refused(prefix_run: Path, capsys: pyte
     err = capsys.readouterr().err.strip()
     assert "--prefix-steps" in err and "[0, --chunk=4)" in err and len(err.splitlines()) == 1
     assert not (prefix_run.parent / "bad").exists()
+
+
+@pytest.mark.parametrize("algo", ["act", "diffusion", "transformer"])
+def test_every_policy_takes_a_prefix_from_state_and_from_cameras(algo: str) -> None:
+    """The wrapper sits outside the camera encoders and any policy: a loss that trains and a chunk of the right
+    shape, told or not told the committed actions."""
+    torch.manual_seed(0)
+    small = {"act": {"d_model": 32, "heads": 2, "encoder_layers": 1, "vae_layers": 1, "feedforward": 64},
+             "transformer": {"d_model": 32, "heads": 2, "layers": 1, "feedforward": 64}}.get(algo, {})
+    for images in ((), (("obs.image_front", 16, 16),)):
+        spec = PolicySpec(obs_dim=6, action_dim=3, horizon=8, images=images, prefix=3)
+        policy = build_policy(algo, spec, small, encoder={"keypoints": 4, "features": 8})
+        state = torch.randn(4, 1, 6)
+        obs = {"state": state, "obs.image_front": torch.randint(0, 255, (4, 1, 16, 16, 3), dtype=torch.uint8)} \
+            if images else state
+        loss = policy.loss(obs, torch.randn(4, 8, 3), torch.zeros(4, 8, dtype=torch.bool))
+        loss.backward()
+        assert torch.isfinite(loss)
+        policy.eval()
+        told = dict(obs) if images else {"state": state}
+        told.update({PREFIX: torch.randn(4, 3, 3), PREFIX_STEPS: torch.full((4,), 2)})
+        assert policy.predict(obs).shape == policy.predict(told).shape == (4, 8, 3)
+
+
+def test_a_camera_run_with_a_prefix_records_its_encoder(tmp_path: Path) -> None:
+    from demo.policies.visuomotor import VisuomotorPolicy
+
+    store = tmp_path / "img.zarr"
+    collect_scripted(CollectConfig(task="pick", episodes=4, seed=0, cameras=(("front", 32, 32),)), store, workers=0)
+    train(TrainConfig(data=str(store), out=str(tmp_path / "run"), steps=4, batch_size=4, chunk=6, prefix_steps=2,
+                      policy={"hidden": (16,)}, encoder={"keypoints": 4, "features": 8}))
+    record = json.loads((tmp_path / "run" / ckpt.RUN_FILE).read_text())["policy"]
+    assert record["encoder"]["keypoints"] == 4 and record["spec"]["prefix"] == 2
+    bundle = ckpt.load_bundle(tmp_path / "run")
+    assert isinstance(bundle.policy, CommittedPrefixPolicy) and isinstance(bundle.policy.inner, VisuomotorPolicy)
+    assert bundle.policy.inner.encoder_config.features == 8
