@@ -14,7 +14,7 @@ from typing import Any
 
 from demo.errors import DemoError
 from demo.evaluation.evaluate import EvalConfig, evaluate
-from demo.figures import pyplot, save_figure
+from demo.figures import success_lines
 from demo.progress import Progress
 from demo.sim.randomize import KINDS, MAX_LEVEL
 
@@ -71,20 +71,7 @@ def evaluate_shifts(config: EvalConfig, kinds: Sequence[str], levels: Sequence[i
 
 def plot_shifts(result: dict[str, Any], path: str | Path) -> Path:
     """Success against level, one line per shift, with the 95% intervals as bands."""
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6.0, 4.0))
-    for kind, cells in result["shifts"].items():
-        levels = sorted(cells)
-        rate = [100 * cells[lv]["success_rate"] for lv in levels]
-        line, = ax.plot(levels, rate, marker="o", label=kind)
-        ax.fill_between(levels, [100 * cells[lv]["ci95"][0] for lv in levels],
-                        [100 * cells[lv]["ci95"][1] for lv in levels], color=line.get_color(), alpha=0.12)
-    ax.set_xlabel("shift level")
-    ax.set_ylabel("success (%)")
-    ax.set_xticks(result["levels"])
-    ax.set_ylim(0, 102)
-    ax.set_title(f"{Path(result['run']).name}: {result['episodes']} episodes per cell")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    series = {kind: [(lv, c["success_rate"], *c["ci95"]) for lv, c in cells.items()]
+              for kind, cells in result["shifts"].items()}
+    return success_lines(series, path, "shift level", f"{Path(result['run']).name}: {result['episodes']} episodes "
+                         "per cell", xticks=list(result["levels"]))

@@ -484,7 +484,8 @@ def bench_realtime(
 
 @bench_app.command("delay")
 def bench_delay(
-    run: Path = typer.Argument(..., metavar="RUN", help="A trained run (its task is simulated)."),
+    runs: list[Path] = typer.Argument(..., metavar="RUN", help="Trained runs, one or more (each one's task is "
+                                      "simulated)."),
     delays: str = typer.Option("0,2,4,6,8,10", help="Inference delays in control steps, comma-separated (0: the "
                                "reference, every answer in time)."),
     episodes: int = typer.Option(100, help="Episodes per delay."),
@@ -495,10 +496,13 @@ def bench_delay(
     ensemble: float = typer.Option(0.01, "--ensemble", metavar="M", help="Weight exp(-M age) of overlapping chunks, "
                                    "oldest first (ACT: 0.01)."),
     seed: int = typer.Option(0, help="Seed of the evaluation episodes."),
+    plot: Path = typer.Option(None, "--plot", metavar="PNG", help="Success against delay, one line per run.",
+                              show_default="(no figure)"),
     json_out: str = json_option(default="-"),
 ) -> None:
-    """Asynchronous chunk execution with the inference delay counted in control steps, simulated without a clock (demo.deploy.delayed): success per delay, in seconds rather than demo bench realtime's minutes."""
+    """Asynchronous chunk execution with the inference delay counted in control steps, simulated without a clock (demo.deploy.delayed): success per delay and run, in seconds rather than demo bench realtime's minutes."""
     from demo.deploy.delayed import DelayConfig, run_delayed  # deferred: torch and MuJoCo
+    from demo.figures import success_lines  # deferred: matplotlib
 
     try:
         steps = [int(d) for d in delays.split(",") if d.strip()]
@@ -508,14 +512,22 @@ def bench_delay(
         raise DemoError("--delays", f"{delays!r}: give one or more delays >= 0")
     results = []
     with bars() as progress:
-        for d in steps:
-            results.append(run_delayed(DelayConfig(str(run), d, episodes, seed, ensemble, anchor, prefix), progress))
-    rows = [[str(r["delay_steps"]), f"{r['successes']}/{r['episodes']}", f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}",
-             str(r["prefix_steps"])] for r in results]
-    report_console(json_out).print(table(f"bench delay: {run} (asynchronous, first chunk anchored "
+        for run in runs:
+            for d in steps:
+                results.append(run_delayed(DelayConfig(str(run), d, episodes, seed, ensemble, anchor, prefix), progress))
+    report: dict = {"anchor": anchor, "ensemble": ensemble, "results": results}
+    if plot is not None:
+        series = {f"{Path(run).name}": [(r["delay_steps"], r["success_rate"], *r["ci95"]) for r in results
+                                        if r["run"] == str(run)] for run in runs}
+        report["plot"] = str(success_lines(series, plot, "inference delay (control steps)",
+                                           f"asynchronous execution, {episodes} episodes per point", steps))
+    rows = [[Path(r["run"]).name, str(r["delay_steps"]), f"{r['successes']}/{r['episodes']}",
+             f"{r['ci95'][0]:.0%}-{r['ci95'][1]:.0%}", str(r["prefix_steps"])] for r in results]
+    report_console(json_out).print(table(f"bench delay (asynchronous, first chunk anchored "
                                          f"{'when used' if anchor else 'at its observation'})",
-                                         ["delay (control steps)", "success", "95% CI", "committed steps told"], rows))
-    write_json({"run": str(run), "anchor": anchor, "ensemble": ensemble, "results": results}, json_out)
+                                         ["run", "delay (control steps)", "success", "95% CI", "committed steps told"],
+                                         rows))
+    write_json(report, json_out)
 
 
 @bench_app.command("serve")

@@ -209,10 +209,14 @@ def test_without_delay_the_simulated_client_is_demo_eval(run: Path, tmp_path: Pa
     late = run_delayed(DelayConfig(str(run), delay_steps=5, episodes=4))
     assert late["episode_lengths"] != now["episode_lengths"]
     out = tmp_path / "delay.json"
-    assert main(["bench", "delay", str(run), "--delays", "5", "--episodes", "4", "--json", str(out)]) == 0
+    figure = tmp_path / "delay.png"
+    assert main(["bench", "delay", str(run), str(run), "--delays", "5", "--episodes", "4", "--plot", str(figure),
+                 "--json", str(out)]) == 0
     import json
 
-    assert json.loads(out.read_text())["results"][0]["episode_lengths"] == late["episode_lengths"]
+    written = json.loads(out.read_text())
+    assert [r["episode_lengths"] for r in written["results"]] == [late["episode_lengths"]] * 2  # one per run
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and written["plot"] == str(figure)
     assert main(["bench", "delay", str(run), "--delays", "-1"]) != 0
 
 
