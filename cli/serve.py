@@ -29,7 +29,9 @@ def serve(
 
     server = PolicyServer(ServerConfig(str(run), host=host, port=port, device=str(resolve_device(device)), expose=expose),
                           log=lambda line: err_console.print(f"[yellow]warning:[/] {escape(line)}", soft_wrap=True))
-    console.print(f"serving {run} at {server.url} (Ctrl-C stops)")
+    prefix = server.bundle.policy.spec.prefix
+    told = f"; it continues up to {prefix} committed actions sent with an observation" if prefix else ""
+    console.print(f"serving {run} at {server.url}{told} (Ctrl-C stops)")
     signal.signal(signal.SIGTERM, lambda *_: server.server.shutdown())
     try:
         server.serve_forever()
