@@ -75,15 +75,12 @@ def _episode(env: Any, actor: Any, config: DelayConfig, seed: int, told: bool) -
         if in_flight is not None and in_flight[0] <= step:
             merger.add(in_flight[1], in_flight[2])
             in_flight = None
-        action = merger.action(step)
-        if in_flight is None:
+        if config.delay_steps == 0:  # answered at once: nothing is committed ahead of this step
+            merger.add(step, actor.chunk(obs).astype(np.float64))
+        action = merger.action(step)  # first, so the episode's first chunk is anchored before looking ahead
+        if in_flight is None and config.delay_steps:
             prefix = merger.committed(step, config.delay_steps) if told else None
-            chunk = actor.chunk(obs, prefix).astype(np.float64)
-            if config.delay_steps == 0:
-                merger.add(step, chunk)
-                action = merger.action(step)
-            else:
-                in_flight = (step + config.delay_steps, step, chunk)
+            in_flight = (step + config.delay_steps, step, actor.chunk(obs, prefix).astype(np.float64))
         command = last if action is None else action  # nothing yet: the robot holds
         last = command
         obs, _, success, truncated, _ = env.step(command)

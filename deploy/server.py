@@ -106,12 +106,8 @@ class PolicyServer:
                 raise ValueError(f"{key} is {tuple(frame[key].shape)}, the policy reads {tuple(shape)}")
             if not np.isfinite(frame[key]).all():
                 raise ValueError(f"{key} holds non-finite values")
-        prefix = None
-        if "prefix" in message:  # actions the robot has committed to (demo.policies.prefix)
-            prefix = unpack_array(message["prefix"])
-            if prefix.ndim != 2 or prefix.shape[1] != self.bundle.action.dim or not np.isfinite(prefix).all():
-                raise ValueError(f"the prefix must be finite [steps, {self.bundle.action.dim}] actions, got shape "
-                                 f"{tuple(prefix.shape)}")
+        # actions the robot has committed to (demo.policies.prefix), checked by the actor
+        prefix = unpack_array(message["prefix"]) if "prefix" in message else None
         start = time.perf_counter()
         with self.lock, torch.inference_mode():
             chunk = actor.chunk(frame, prefix)

@@ -182,13 +182,16 @@ class PolicyActor:
         ``prefix [d, A]``: the actions the executor has already committed to for this frame's step and the
         ``d - 1`` after it (absolute). A policy trained to continue them (:mod:`demo.policies.prefix`) is told
         up to its ``spec.prefix`` of them and its chunk starts with them; another ignores them."""
-        self._observe(frame)
-        allowed = self.policy.spec.prefix
         committed = None
-        if prefix is not None and allowed and len(prefix):
-            committed = np.asarray(prefix, np.float32).reshape(len(prefix), -1)[:allowed]
-            if committed.shape[1] != self.action_norm.dim:
-                raise ValueError(f"the prefix has {committed.shape[1]} action dims, the policy's actions {self.action_norm.dim}")
+        if prefix is not None:
+            prefix = np.asarray(prefix, np.float32)
+            width = self.action_norm.dim
+            if prefix.ndim != 2 or prefix.shape[1] != width or not np.isfinite(prefix).all():
+                raise ValueError(f"the prefix must be finite [steps, {width}] actions, got shape {tuple(prefix.shape)} "
+                                 f"({prefix.shape[-1] if prefix.ndim else 0} action dims)")
+            allowed = self.policy.spec.prefix
+            committed = prefix[:allowed] if allowed and len(prefix) else None
+        self._observe(frame)
         chunk = self._query(frame, committed).astype(np.float32)
         if committed is not None:
             chunk[: len(committed)] = committed

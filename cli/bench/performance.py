@@ -517,7 +517,7 @@ def bench_delay(
                 results.append(run_delayed(DelayConfig(str(run), d, episodes, seed, ensemble, anchor, prefix), progress))
     report: dict = {"anchor": anchor, "ensemble": ensemble, "results": results}
     if plot is not None:
-        series = {f"{Path(run).name}": [(r["delay_steps"], r["success_rate"], *r["ci95"]) for r in results
+        series = {Path(run).name: [(r["delay_steps"], r["success_rate"], *r["ci95"]) for r in results
                                         if r["run"] == str(run)] for run in runs}
         report["plot"] = str(success_lines(series, plot, "inference delay (control steps)",
                                            f"asynchronous execution, {episodes} episodes per point", steps))
