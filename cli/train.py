@@ -107,6 +107,8 @@ def train(
     color_jitter: float = typer.Option(None, "--color-jitter", metavar="J", help="Colour jitter of camera images in "
                                        "training: brightness +-J, contrast and saturation x 1+-J (0 = off).",
                                        show_default="0"),
+    aux_weight: float = typer.Option(None, "--aux-weight", metavar="W", help="Weight of the --aux-target loss beside "
+                                     "the action loss.", show_default="1"),
     device: str = device_option(),
     head: str = typer.Option(None, metavar="mse|gmm|discrete", help="bc, dagger: output head (= --policy-opt head=...): "
                              "regression, Gaussian mixture or per-dimension bins over the chunk.", show_default="mse"),
@@ -168,7 +170,7 @@ def train(
         out=str(out), policy=_with_head(parse_policy_opts(policy_opt), head, algo), obs_keys=_obs_keys(obs_keys),
         relative_actions=not absolute_actions, eval_every=eval_every if eval_episodes else 0,
         eval_episodes=max(1, eval_episodes), eval_final=eval_episodes > 0, robot=str(robot) if robot else None,
-        device=device, text=parse_policy_opts(text_opt, "--text-opt"), encoder={k: v for k, v in (("backbone", encoder), ("crop", crop), ("color_jitter", color_jitter))
+        device=device, text=parse_policy_opts(text_opt, "--text-opt"), encoder={k: v for k, v in (("backbone", encoder), ("crop", crop), ("color_jitter", color_jitter), ("aux_weight", aux_weight))
                                 if v is not None},
     )
     how = dict(resume=resume, overwrite=overwrite, command=invocation())

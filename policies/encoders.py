@@ -44,6 +44,9 @@ class EncoderConfig:
     color_jitter: float = 0.0
     keypoints: int = 32  # spatial-softmax keypoints per camera (2 features each)
     features: int = 64  # features per camera after a linear layer over the keypoints
+    # With an auxiliary target (demo train --aux-target): the weight of its loss, the mean squared error of the
+    # state (normalised to [-1, 1]) predicted linearly from the cameras' features, beside the action loss
+    aux_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.backbone not in BACKBONES:
@@ -54,7 +57,10 @@ class EncoderConfig:
             raise ValueError("keypoints and features must be positive")
         if not 0.0 <= float(self.color_jitter) <= 1.0:
             raise ValueError(f"color_jitter must lie in [0, 1], got {self.color_jitter}")
+        if float(self.aux_weight) < 0:
+            raise ValueError(f"aux_weight must be at least 0, got {self.aux_weight}")
         self.crop = float(self.crop)
+        self.aux_weight = float(self.aux_weight)
         self.color_jitter = float(self.color_jitter)
 
     def crop_size(self, height: int, width: int) -> tuple[int, int]:

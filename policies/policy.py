@@ -55,6 +55,9 @@ class PolicySpec:
     # Committed actions the policy is told at the start of its chunk (demo.policies.prefix: asynchronous execution
     # under inference delay); 0 = none.
     prefix: int = 0
+    # A policy from cameras trained to predict a state from its cameras' features as well (demo train --aux-target:
+    # demo.policies.visuomotor): that state's width; 0 = none. Read in training only.
+    aux_dim: int = 0
     # Set by a wrapper for the policy inside it (never recorded; the wrapper derives them again):
     # how one frame's vector splits into tokens (the low-dim part, then each camera's features; () = one
     # token), and the width of the instruction's per-word tokens a policy that ``takes_tokens`` reads (0 = none).
@@ -72,7 +75,7 @@ class PolicySpec:
             d["images"] = [list(i) for i in self.images]
         if not self.vocab:
             del d["vocab"], d["max_tokens"]
-        for key in ("cond_dim", "prefix"):
+        for key in ("cond_dim", "prefix", "aux_dim"):
             if not d[key]:  # recorded only when set: runs without it read as before
                 del d[key]
         return d

@@ -169,6 +169,11 @@ class TrainConfig:
     prefix_steps: int = setting(0, "Train the policy to continue up to this many committed actions at the start of "
                                    "its chunk, for asynchronous execution under inference delay (demo serve; "
                                    "0 = off; less than --chunk).")
+    # A policy from cameras: a state it is not given (comma-separated store keys, e.g. obs.object_pos) that its
+    # encoders learn to predict as well (demo.policies.visuomotor); the loss's weight is the encoder's aux_weight
+    aux_target: str | None = setting(None, "Train the camera encoders to predict these low-dim store keys as well "
+                                           "(comma-separated, e.g. obs.object_pos; an auxiliary loss, not an input).",
+                                     metavar="KEYS", unset="none")
     # ---- the same for every policy
     ensemble_decay: float = setting(0.01, "Ensembling weight exp(-m i) by a prediction's age i (ACT: 0.01).", resume=False)
     min_lr_ratio: float = setting(0.01, "The cosine schedule decays to this fraction of --lr.")

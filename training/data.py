@@ -12,7 +12,9 @@
    ``[B, n_obs, D]`` and action chunks ``[B, chunk, A]``, padded at episode edges
    (:class:`demo.store.WindowSampler`). With cameras, an observation is a dict: the vector under
    ``"state"`` and each camera's uint8 images ``[B, n_obs, H, W, 3]`` under its key; images stay
-   bytes in memory and become floats in the policy's encoder (:mod:`demo.policies.visuomotor`).
+   bytes in memory and become floats in the policy's encoder (:mod:`demo.policies.visuomotor`). With
+   ``--aux-target KEYS`` the windows carry the query frame's state of those keys as well, min-max
+   normalised like the observations, for the encoders' auxiliary loss.
 
 Frames may carry a per-frame expert-label flag (:data:`LABEL_KEY`, written by DAgger): windows then
 start at labelled frames only, and chunk steps on unlabelled frames count as padding (no loss). A
@@ -45,6 +47,7 @@ from demo.policies.instruction import INSTRUCTION, InstructionTokenizer, Pretrai
 from demo.policies.normalizer import OBS_CLIP, MinMaxNormalizer
 from demo.policies.observation import STATE, ObsSpec
 from demo.policies.policy import PolicySpec
+from demo.policies.visuomotor import AUX_TARGET
 from demo.policies.relative import RelativeActions, default_relative
 
 LABEL_KEY = "info.labelled"  # optional per-frame flag: this frame's action is an expert label
@@ -146,6 +149,9 @@ class TrainingData:
     chunks: np.ndarray | None = None  # [N, H, A] raw chunk labels (CHUNK_KEY), all NaN on a frame without one
     instructions: Instructions | None = None  # the episodes' instructions, for an instruction-conditioned policy
     mix: tuple[float, ...] = ()  # per source, its share of each training batch (TrainConfig.mix); () = by windows
+    aux: np.ndarray | None = None  # [N, aux_dim] normalised auxiliary targets (TrainConfig.aux_target); None = none
+    aux_keys: tuple[str, ...] = ()  # the store keys they concatenate, in order
+    aux_norm: MinMaxNormalizer | None = None  # fitted on the training frames
 
     def frames(self, episodes: np.ndarray) -> int:
         """Frames of ``episodes`` that hold an action label (all of them without label flags)."""
@@ -184,9 +190,11 @@ class TrainingData:
         if self.instructions is not None:  # the same vocabulary: new words are unknown to it
             instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3],
                                            self.instructions.pretrained)
+        aux = None if self.aux_norm is None else _normalized_obs(_load_aux(store, self.aux_keys), self.aux_norm)
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
                        ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
-                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions)
+                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions,
+                       aux=aux)
 
 
 def prepare(config: TrainConfig, store: EpisodeStore, among: np.ndarray | None = None,
@@ -309,6 +317,12 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
         spec = replace(spec, vocab=instructions.tokenizer.vocab_size, max_tokens=instructions.tokenizer.max_tokens)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
                         obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions, tuple(config.mix))
+    if config.aux_target:
+        data.aux_keys = aux_keys(config.aux_target, stores, obs_spec)
+        raw_aux = _join([_load_aux(store, data.aux_keys) for store in stores])
+        data.aux_norm = MinMaxNormalizer.fit(raw_aux[frames])
+        data.aux = _normalized_obs(raw_aux, data.aux_norm)
+        data.spec = replace(spec, aux_dim=raw_aux.shape[1])
     data.action_norm = _fit_action_normalizer(data)  # its windows are read unnormalised
     return data
 
@@ -333,6 +347,30 @@ def _instructions(config: TrainConfig, stores: Sequence[EpisodeStore], sources: 
         pretrained = pretrained_text(init)
         return Instructions.of(pretrained.tokenizer, texts, ends, pretrained)
     return Instructions.of(InstructionTokenizer.train(trained), texts, ends)
+
+
+def aux_keys(given: str, stores: Sequence[EpisodeStore], obs_spec: ObsSpec) -> tuple[str, ...]:
+    """``--aux-target``'s comma-separated keys, each a low-dim feature of every store; refused (DemoError) for a
+    policy without cameras (it could read the state itself) or a key a store lacks."""
+    keys = tuple(k.strip() for k in given.split(",") if k.strip())
+    if not obs_spec.images:
+        raise DemoError("--aux-target", "asks the camera encoders for a state, and this policy reads no camera "
+                                        "(train on a store with cameras, or give the state as an observation)")
+    if not keys:
+        raise DemoError("--aux-target", f"names no key (got {given!r}); e.g. --aux-target obs.object_pos")
+    for store in stores:
+        features = store.meta.features
+        for key in keys:
+            if key not in features or key.startswith(IMAGE_PREFIX):
+                low_dim = sorted(k for k in features if k.startswith("obs.") and not k.startswith(IMAGE_PREFIX))
+                raise DemoError(store.path, f"has no low-dim observation {key!r} for --aux-target (it has: {', '.join(low_dim)})")
+    return keys
+
+
+def _load_aux(store: EpisodeStore, keys: Sequence[str]) -> np.ndarray:
+    """``[N, D]``: the store's frames of ``keys``, each flattened per frame, side by side (float32)."""
+    arrays, _ = store.load(list(keys))
+    return np.concatenate([np.asarray(arrays[k], np.float32).reshape(len(arrays[k]), -1) for k in keys], axis=1)
 
 
 def _join(arrays: list[np.ndarray]) -> np.ndarray:
@@ -442,6 +480,7 @@ class Windows:
         self.chunks = data.chunks
         self.has_chunk = None if data.chunks is None else np.isfinite(data.chunks[:, 0, 0])
         self.instructions = data.instructions
+        self.aux = data.aux
         # --mix: per store, its windows (by query frame) and the share of each batch drawn from them
         self.mix: list[tuple[float, np.ndarray]] = []
         if data.mix and len(data.sources) > 1:
@@ -488,6 +527,8 @@ class Windows:
             obs = {STATE: obs, **{k: torch.from_numpy(b.obs[k]) for k in self.cameras}}
         if self.instructions is not None:  # the query frame's (an episode's frames share one)
             obs[INSTRUCTION] = torch.from_numpy(self.instructions.tokens[self.instructions.of_frame[b.index]])
+        if self.aux is not None:  # with cameras: obs is a dict
+            obs[AUX_TARGET] = torch.from_numpy(self.aux[b.index])
         return obs, torch.from_numpy(np.ascontiguousarray(action)), torch.from_numpy(pad)
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> Batch:

@@ -157,3 +157,47 @@ def test_instructions_film_the_image_encoders_and_the_mlp_on_request(tmp_path: P
         for f in headed.policy.inner.head.film:
             f.weight.normal_()
         assert not torch.allclose(headed.policy.predict(obs), headed.policy.predict(other))  # the words reach the MLP
+
+
+def test_an_auxiliary_target_trains_the_encoders_to_find_the_cube(store: Path, tmp_path: Path) -> None:
+    """--aux-target obs.object_pos: the encoders learn to predict the cube's position (a loss beside the actions', in
+    training only), the run records its width and reloads; the policy never reads it at evaluation."""
+    from demo.policies.normalizer import OBS_CLIP
+    from demo.policies.policy import build_policy
+    from demo.policies.visuomotor import AUX_TARGET
+    from demo.training.data import prepare
+
+    config = tiny(store, tmp_path / "run", steps=150, aux_target="obs.object_pos", encoder={"keypoints": 8, "features": 16, "aux_weight": 1.0})
+    with EpisodeStore.open(store) as s:
+        data = prepare(config.resolved(), s)
+    assert data.spec.aux_dim == 3 and data.aux.shape == (len(data.action), 3) and np.abs(data.aux).max() <= OBS_CLIP
+    batch = data.windows(data.train_episodes).fixed(64, seed=0)
+    obs, action, pad = batch
+    assert AUX_TARGET in obs
+    summary = train(config)
+    bundle = ckpt.load_bundle(tmp_path / "run")
+    policy = bundle.policy
+    assert json.loads((tmp_path / "run" / ckpt.RUN_FILE).read_text())["policy"]["spec"]["aux_dim"] == 3
+    # Evaluation mode: the loss is the actions' alone (validation compares with runs without a target) ...
+    policy.eval()
+    without = {k: v for k, v in obs.items() if k != AUX_TARGET}
+    assert policy.loss(obs, action, pad).item() == pytest.approx(policy.loss(without, action, pad).item())
+    # ... and the trained encoders predict the cube's position far better than the untrained ones.
+    torch.manual_seed(0)
+    untrained = build_policy("bc", policy.spec, policy.config, policy.encoder_config).eval()
+    with torch.no_grad():
+        errors = [p.aux_error(p.encode(without), obs[AUX_TARGET]).item() for p in (policy, untrained)]
+    assert errors[0] < 0.5 * errors[1], errors
+    assert np.isfinite(summary["train_loss"])
+    result = evaluate(EvalConfig(run=str(tmp_path / "run"), episodes=1, device="cpu"))
+    assert result["episodes"] == 1
+
+
+def test_an_auxiliary_target_is_refused_without_cameras_or_with_an_unknown_key(store: Path, tmp_path: Path) -> None:
+    with pytest.raises(DemoError, match="no low-dim observation 'obs.nope'"):
+        train(tiny(store, tmp_path / "a", aux_target="obs.nope"))
+    with pytest.raises(DemoError, match="reads no camera"):
+        train(tiny(store, tmp_path / "b", aux_target="obs.object_pos", obs_keys=("proprio",)))
+    with pytest.raises(DemoError, match="aux_weight"):
+        train(tiny(store, tmp_path / "c", aux_target="obs.object_pos", encoder={"aux_weight": -1}))
+    assert not (tmp_path / "a" / ckpt.POLICY_FILE).exists()

@@ -15,8 +15,9 @@ from demo.cli.main import commands
 from demo.imitation.config import DaggerConfig
 from demo.training.config import LOOP_DEFAULTS, RESUME_KEYS, TrainConfig, setting
 
-# Options that steer the command, not the configuration (where it runs, what it does with the result).
-CONTROLS = {"--head", "--crop", "--color-jitter", "--algo-opt", "--workers", "--executor", "--address", "--resume", "--overwrite", "--json",
+# Options that steer the command, not the configuration (where it runs, what it does with the result), and
+# the encoder options (--crop, --color-jitter, --aux-weight: fields of EncoderConfig, not of TrainConfig).
+CONTROLS = {"--head", "--crop", "--color-jitter", "--aux-weight", "--algo-opt", "--workers", "--executor", "--address", "--resume", "--overwrite", "--json",
             "--nproc", "--distil", "--help"}
 
 
