@@ -351,7 +351,7 @@ def collect(agent: Agent, pool: EnvPool, controller: Controller, reward: TaskRew
     pool.obs = obs
     arrays = {k: np.stack(v) for k, v in out.items()}
     frames_before, frames_after = stack(before_all), stack(after_all)
-    task = arrays["features"] @ np.asarray(reward.weights) + reward.events(frames_before, frames_after)
+    task = arrays["features"] @ np.asarray(reward.weights) + reward.events(frames_before, frames_after, options)
     return Rollout(**arrays, task_reward=task, obs_norm=norm, frames=frames_before, next_frames=frames_after)
 
 

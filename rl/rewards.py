@@ -31,12 +31,19 @@ weights that compare directly with these, and any learned reward can be correlat
 
 ``stack`` (every cycle of ``repeat`` K, one cube or several): a finished stack that is not the last moves
 the pad on and puts the cubes back in the same control step, so the state after it looks like a new
-start and no function of that state alone can pay for it. Its reward is sparse and reads the transition:
+start and no function of that state alone can pay for it, nor can a distance of that state: the
+distances jump back up when a cycle ends, and a reward of the state would punish finishing one. Its
+reward reads the transition:
 
 - ``success`` [0/1]: every cube at its level on the pad (2 cm across, 1 cm in height) with the gripper
   open: the last stack, held (the task's success), weight +1 per step;
-- the **event** ``cycle`` (:attr:`TaskReward.event`): +1 on the step a cycle ends, i.e. the pad's centre
-  moved by more than 1 cm between the states before and after it.
+- the **event** ``progress`` (:attr:`TaskReward.event`): on the step a cycle ends (the pad's centre moved
+  by more than 1 cm between the states before and after it) +:data:`CYCLE_BONUS`; on every other step
+  the change of the potential ``Phi(s') - Phi(s)`` (Ng et al. 1999's shaping, undiscounted), where
+  ``Phi = -(STAGE_WEIGHT * cubes not yet stacked + REACH_WEIGHT * |EE - cube| + PLACE_WEIGHT * |cube - its
+  place|)`` [m] for the next cube to stack (the first, in order, not at its level): the arm is paid as it
+  brings the gripper to the cube and the cube to its place, and paid back nothing it has not earned. The
+  sparse form of then (the cycle alone, +1) moved a residual over BC from 38 to 47/100 in 1.2 million steps.
 
 The features are numpy over batches: every function takes observation arrays with a leading batch
 axis (a store's episodes or the observations of several environments). :func:`pearson` measures how
@@ -95,13 +102,44 @@ def _stack(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[s
     return (at_level.all(axis=1) & open_hand).astype(np.float64)[:, None]
 
 
-def _pad_moved(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> np.ndarray:
+CYCLE_BONUS = 5.0  # stack: reward for a finished cycle
+STAGE_WEIGHT = 5.0  # stack: potential per cube still to stack
+REACH_WEIGHT = 10.0  # stack: potential per m between the EE site and the next cube
+PLACE_WEIGHT = 10.0  # stack: potential per m between the next cube and its place on the pad
+
+
+def pad_moved(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> np.ndarray:
     """1 where the pad's centre moved by more than 1 cm across a step (a finished stack cycle), else 0."""
     step = np.asarray(after["obs.goal_pos"], np.float64) - np.asarray(before["obs.goal_pos"], np.float64)
     return (np.linalg.norm(step, axis=-1) > 0.01).astype(np.float64)
 
 
-Event = Callable[[Mapping[str, np.ndarray], Mapping[str, np.ndarray]], np.ndarray]
+def stack_potential(obs: Mapping[str, np.ndarray], options: Mapping[str, Any]) -> np.ndarray:
+    """``Phi`` of the module docstring over a batch ``[..]`` of stack states."""
+    cubes = np.asarray(obs["obs.object_pos"], np.float64)  # [.., N, 3]
+    size = float(options.get("cube_size", 0.04))
+    pad = np.asarray(obs["obs.goal_pos"], np.float64)
+    places = np.broadcast_to(pad[..., None, :], cubes.shape).copy()
+    places[..., 2] = (np.arange(cubes.shape[-2]) + 0.5) * size  # each cube's centre on the stack
+    place_err = np.linalg.norm(cubes - places, axis=-1)  # [.., N]
+    at_level = (np.linalg.norm(cubes[..., :2] - places[..., :2], axis=-1) <= 0.02) & (np.abs(cubes[..., 2] - places[..., 2]) <= 0.01)
+    stacked = np.cumprod(at_level, axis=-1).sum(axis=-1)  # the cubes stacked in order
+    nxt = np.minimum(stacked, cubes.shape[-2] - 1)[..., None, None]
+    cube = np.take_along_axis(cubes, nxt, axis=-2)[..., 0, :]
+    reach = np.linalg.norm(np.asarray(obs["obs.ee_pos"], np.float64) - cube, axis=-1)
+    err = np.take_along_axis(place_err, nxt[..., 0], axis=-1)[..., 0]
+    todo = cubes.shape[-2] - stacked
+    return -(STAGE_WEIGHT * todo + np.where(todo > 0, REACH_WEIGHT * reach + PLACE_WEIGHT * err, 0.0))
+
+
+def _progress(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray], options: Mapping[str, Any]) -> np.ndarray:
+    """Stack's transition reward: :data:`CYCLE_BONUS` where a cycle ended, else the potential's change."""
+    cycle = pad_moved(before, after)
+    shaping = stack_potential(after, options) - stack_potential(before, options)
+    return np.where(cycle > 0, CYCLE_BONUS, shaping)
+
+
+Event = Callable[[Mapping[str, np.ndarray], Mapping[str, np.ndarray], Mapping[str, Any]], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -129,9 +167,10 @@ class TaskReward:
         """``[N]`` dense rewards of ``N`` states (per control step)."""
         return self.features(obs, failed, options) @ np.asarray(self.weights)
 
-    def events(self, before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray]) -> np.ndarray | float:
-        """The event term over a batch of transitions (0 for a task without one)."""
-        return 0.0 if self.event is None else self.event(before, after)
+    def events(self, before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray],
+               options: Mapping[str, Any] | None = None) -> np.ndarray | float:
+        """The event term over a batch of transitions (0 for a task without one); ``options`` the task's."""
+        return 0.0 if self.event is None else self.event(before, after, options or {})
 
     def to_json(self) -> dict[str, Any]:
         return {"task": self.task, "features": list(self.names), "units": list(self.units),
@@ -142,7 +181,7 @@ TASK_REWARDS: dict[str, TaskReward] = {
     "reach": TaskReward("reach", ("pos_err", "rot_err", "success"), ("m", "rad", "1"), (-10.0, -1.0, 2.0), _reach),
     "avoid": TaskReward("avoid", ("goal_err", "touched", "success"), ("m", "1", "1"), (-10.0, -5.0, 2.0), _avoid),
     "pick": TaskReward("pick", ("reach_err", "lift", "success"), ("m", "m", "1"), (-10.0, 20.0, 2.0), _pick),
-    "stack": TaskReward("stack", ("success",), ("1",), (1.0,), _stack, event=_pad_moved),
+    "stack": TaskReward("stack", ("success",), ("1",), (1.0,), _stack, event=_progress),
 }
 
 

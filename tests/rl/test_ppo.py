@@ -14,7 +14,7 @@ import torch
 from demo.rl.ppo import (Agent, GaussianConfig, GaussianPolicy, PPOConfig, RunningMeanStd, gae, ppo_losses,
                             ppo_update, train)
 from demo.policies.policy import PolicySpec
-from demo.rl.rewards import TASK_REWARDS, quat_angles
+from demo.rl.rewards import CYCLE_BONUS, STAGE_WEIGHT, TASK_REWARDS, pad_moved, stack_potential, quat_angles
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -116,7 +116,8 @@ def test_pick_features_follow_the_staged_lift() -> None:
 
 def test_stack_pays_each_finished_cycle_and_the_last_stack(tmp_path: Path) -> None:
     """The scripted expert's episodes of stack with two respawned cycles: one cycle event (the pad moves
-    between two frames) and success on the settled last stack, nowhere else."""
+    between two frames), paid the cycle's bonus; shaping that pays each approach and carry; success on the
+    settled last stack, nowhere else."""
     from demo.collect.scripted import CollectConfig, collect_scripted
     from demo.store import EpisodeStore
 
@@ -125,9 +126,19 @@ def test_stack_pays_each_finished_cycle_and_the_last_stack(tmp_path: Path) -> No
     reward = TASK_REWARDS["stack"]
     with EpisodeStore.open(tmp_path / "s.zarr") as store:
         for i in range(2):
-            ep = store.read_episode(i, ["obs.object_pos", "obs.goal_pos", "obs.gripper"])
+            ep = store.read_episode(i, ["obs.object_pos", "obs.goal_pos", "obs.gripper", "obs.ee_pos"])
             before, after = ({k: v[:-1] for k, v in ep.items()}, {k: v[1:] for k, v in ep.items()})
-            assert reward.events(before, after).sum() == 1  # the first stack's end, not the last's
+            cycles = pad_moved(before, after)
+            assert cycles.sum() == 1  # the first stack's end, not the last's
+            events = reward.events(before, after, options)
+            assert events[cycles > 0] == CYCLE_BONUS  # finishing a cycle pays, though the distances jump back up
+            # The shaping between cycles is the potential's change: it pays the expert for each approach and
+            # carry (the potential rises from a start to 0 at the stack) and sums over the episode to its rise.
+            first = int(np.flatnonzero(cycles)[0])
+            phi = stack_potential(ep, options)
+            assert phi[0] < -STAGE_WEIGHT and phi[-1] == 0.0
+            assert events[:first].sum() == pytest.approx(phi[first] - phi[0])
+            assert events[first + 1:].sum() == pytest.approx(phi[-1] - phi[first + 1])
             success = reward.features(ep, None, options)[:, 0]
             assert success[-1] == 1 and success[: len(success) // 2].sum() == 0
 
