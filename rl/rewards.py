@@ -92,12 +92,18 @@ def _pick(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[st
     return np.stack([reach_err, np.clip(height, 0.0, lift_height), success.astype(np.float64)], axis=-1)
 
 
+def _stack_places(obs: Mapping[str, np.ndarray], options: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stack's cubes ``[.., N, 3]``, each one's place on the pad's stack (its centre, same shape), and whether it is
+    at its place ``[.., N]`` (2 cm across, 1 cm in height)."""
+    cubes = np.asarray(obs["obs.object_pos"], np.float64)
+    places = np.broadcast_to(np.asarray(obs["obs.goal_pos"], np.float64)[..., None, :], cubes.shape).copy()
+    places[..., 2] = (np.arange(cubes.shape[-2]) + 0.5) * float(options.get("cube_size", 0.04))
+    at_level = (np.linalg.norm(cubes[..., :2] - places[..., :2], axis=-1) <= 0.02) & (np.abs(cubes[..., 2] - places[..., 2]) <= 0.01)
+    return cubes, places, at_level
+
+
 def _stack(obs: Mapping[str, np.ndarray], failed: np.ndarray, options: Mapping[str, Any]) -> np.ndarray:
-    cubes = np.asarray(obs["obs.object_pos"], np.float64)  # [B, N, 3]
-    size = float(options.get("cube_size", 0.04))
-    place = np.asarray(obs["obs.goal_pos"], np.float64)[:, None, :2]
-    levels = (np.arange(cubes.shape[1]) + 0.5) * size
-    at_level = (np.linalg.norm(cubes[..., :2] - place, axis=-1) <= 0.02) & (np.abs(cubes[..., 2] - levels) <= 0.01)
+    at_level = _stack_places(obs, options)[2]
     open_hand = np.asarray(obs["obs.gripper"], np.float64)[:, 0] < 0.5
     return (at_level.all(axis=1) & open_hand).astype(np.float64)[:, None]
 
@@ -116,13 +122,8 @@ def pad_moved(before: Mapping[str, np.ndarray], after: Mapping[str, np.ndarray])
 
 def stack_potential(obs: Mapping[str, np.ndarray], options: Mapping[str, Any]) -> np.ndarray:
     """``Phi`` of the module docstring over a batch ``[..]`` of stack states."""
-    cubes = np.asarray(obs["obs.object_pos"], np.float64)  # [.., N, 3]
-    size = float(options.get("cube_size", 0.04))
-    pad = np.asarray(obs["obs.goal_pos"], np.float64)
-    places = np.broadcast_to(pad[..., None, :], cubes.shape).copy()
-    places[..., 2] = (np.arange(cubes.shape[-2]) + 0.5) * size  # each cube's centre on the stack
+    cubes, places, at_level = _stack_places(obs, options)
     place_err = np.linalg.norm(cubes - places, axis=-1)  # [.., N]
-    at_level = (np.linalg.norm(cubes[..., :2] - places[..., :2], axis=-1) <= 0.02) & (np.abs(cubes[..., 2] - places[..., 2]) <= 0.01)
     stacked = np.cumprod(at_level, axis=-1).sum(axis=-1)  # the cubes stacked in order
     nxt = np.minimum(stacked, cubes.shape[-2] - 1)[..., None, None]
     cube = np.take_along_axis(cubes, nxt, axis=-2)[..., 0, :]
