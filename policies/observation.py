@@ -44,6 +44,9 @@ MAX_LOW_DIM = 4096  # values per frame; anything larger is not a state vector
 # obs.agent_*: the robot's own state in LeRobot's Gymnasium environments (gym-aloha's 14 joint positions, PushT's
 # pusher), beside which they may observe an object's pose that a camera policy must not be given.
 PROPRIO_PREFIXES = ("obs.joint_", "obs.gripper", "obs.ee_", "obs.agent_")
+# The simulator's state of the objects, recorded beside a camera for the experts and for --aux-target (gym-aloha's
+# env_state, Meta-World's 39-D state): what a camera policy must not be given, never a default input.
+PRIVILEGED_KEYS = ("obs.env_state",)
 QUAT_TO_ROT6D = "quat_to_rot6d"
 DIFFERENCE = "difference"
 RELATIVE_ROTATION = "relative_rotation"
@@ -96,7 +99,7 @@ def default_keys(features: Mapping[str, FeatureSpec]) -> list[str]:
     if image_keys(features):
         # A store of another tool's (a Gymnasium env, a LeRobot dataset) names no joints: its own low-dim
         # state (obs.state) is its proprioception.
-        state = [k for k in low_dim_keys(features) if not k.endswith("_vel")]
+        state = [k for k in low_dim_keys(features) if not k.endswith("_vel") and k not in PRIVILEGED_KEYS]
         return image_keys(features) + (proprio_keys(features) or state)
     keys = [k for k in low_dim_keys(features) if not k.endswith("_vel")] or low_dim_keys(features)
     ref = features.get(REFERENCE_KEY)

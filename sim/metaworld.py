@@ -26,6 +26,8 @@ needs it, and a command that does without it says so in one line.
   Shadows and reflections are off: on this machine's software EGL they cost 7-10x the frame rate
   (5.9 frames/s with them at 64x64, 43 without shadows, 56 without either), and at 64x64 the image
   barely changes.
+  ``--env-opt env_state=true`` records the 39-D state beside them as ``obs.env_state``: never a default input
+  of a policy (:data:`demo.policies.observation.PRIVILEGED_KEYS`), a target for ``demo train --aux-target``.
 """
 
 from __future__ import annotations
@@ -121,15 +123,20 @@ def instruction(task: str) -> str:
     return INSTRUCTIONS.get(name, name.replace("-", " "))
 
 
-def make(task: str, seed: int = BENCHMARK_SEED, camera: str | None = None, **options: Any) -> gymnasium.Env:
+def make(task: str, seed: int = BENCHMARK_SEED, camera: str | None = None, env_state: bool = False,
+         **options: Any) -> gymnasium.Env:
     """The Meta-World task ``task`` (e.g. ``pick-place-v3``) as the benchmark builds it (module docstring);
-    ``camera`` (``NAME@WxH``): observed from that camera and the 4-D end-effector state instead."""
+    ``camera`` (``NAME@WxH``): observed from that camera and the 4-D end-effector state instead, with the 39-D
+    state as ``env_state`` too where ``env_state`` is set."""
     if len(task_set(task)) > 1:
         raise DemoError(f"--env metaworld:{task}", "names a set of tasks, not one environment (demo.sim.foreign_set)")
+    if env_state and camera is None:
+        raise DemoError("--env-opt env_state", "records the state beside a camera's image; without --env-opt camera "
+                                               "the observation is the state already")
     _mujoco4_welds()
     # disable_env_checker: its passive checker warns about Meta-World's own spaces on every make
     env = gymnasium.make("Meta-World/MT1", env_name=task, seed=seed, disable_env_checker=True, **options)
-    return env if camera is None else CameraObservation(env, camera)
+    return env if camera is None else CameraObservation(env, camera, bool(env_state))
 
 
 PROPRIO = slice(0, 4)  # the 39-D state's end-effector position (m) and gripper opening
@@ -138,7 +145,7 @@ PROPRIO = slice(0, 4)  # the 39-D state's end-effector position (m) and gripper 
 class CameraObservation(gymnasium.ObservationWrapper):
     """A Meta-World env observed from one of its cameras plus the 4-D end-effector state (module docstring)."""
 
-    def __init__(self, env: gymnasium.Env, camera: str):
+    def __init__(self, env: gymnasium.Env, camera: str, env_state: bool = False):
         super().__init__(env)
         import mujoco  # deferred: only with Meta-World
 
@@ -154,9 +161,13 @@ class CameraObservation(gymnasium.ObservationWrapper):
         self.renderer = mujoco.Renderer(model, height, width)
         self.flags = {mujoco.mjtRndFlag.mjRND_SHADOW: False, mujoco.mjtRndFlag.mjRND_REFLECTION: False}
         low, high = env.observation_space.low[PROPRIO], env.observation_space.high[PROPRIO]
-        self.observation_space = gymnasium.spaces.Dict({
-            f"image_{self.camera}": gymnasium.spaces.Box(0, 255, (height, width, 3), np.uint8),
-            "state": gymnasium.spaces.Box(low, high, dtype=np.float64)})
+        spaces = {f"image_{self.camera}": gymnasium.spaces.Box(0, 255, (height, width, 3), np.uint8),
+                  "state": gymnasium.spaces.Box(low, high, dtype=np.float64)}
+        self.env_state = env_state
+        if env_state:  # the privileged 39-D state, recorded for --aux-target (module docstring)
+            full = env.observation_space
+            spaces["env_state"] = gymnasium.spaces.Box(full.low, full.high, dtype=np.float64)
+        self.observation_space = gymnasium.spaces.Dict(spaces)
         self.full_state: np.ndarray | None = None  # the 39-D state behind the last observation (for the expert)
 
     def observation(self, observation: np.ndarray) -> dict[str, np.ndarray]:
@@ -165,7 +176,10 @@ class CameraObservation(gymnasium.ObservationWrapper):
         for flag, on in self.flags.items():
             self.renderer.scene.flags[flag] = on
         image = self.renderer.render()[::-1, ::-1]  # turned 180 degrees: the corner camera renders upside down
-        return {f"image_{self.camera}": np.ascontiguousarray(image), "state": self.full_state[PROPRIO]}
+        out = {f"image_{self.camera}": np.ascontiguousarray(image), "state": self.full_state[PROPRIO]}
+        if self.env_state:
+            out["env_state"] = self.full_state.astype(np.float64)
+        return out
 
     def close(self) -> None:
         self.renderer.close()

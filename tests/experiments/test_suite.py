@@ -7,6 +7,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from demo.cli.main import main
@@ -78,6 +79,22 @@ def test_suite_from_the_corner_camera_in_miniature(tmp_path: Path, one_line_erro
         assert image.std() > 10  # a rendered scene, not a blank frame
     one_line_error(["collect", "--env", "metaworld:reach-v3", "--env-opt", "camera=nowhere@32x32", "--expert",
                     "metaworld", "--episodes", "1", "--out", str(tmp_path / "x.zarr")], "no camera 'nowhere'")
+
+
+def test_the_benchmarks_state_recorded_beside_the_camera_trains_the_encoders_only(tmp_path: Path, one_line_error) -> None:
+    store_path, run = tmp_path / "cam.zarr", tmp_path / "run"
+    assert main(["collect", "--env", "metaworld:reach-v3", "--env-opt", "camera=corner@32x32", "--env-opt",
+                 "env_state=true", "--expert", "metaworld", "--episodes", "2", "--seed", "0", "--out", str(store_path)]) == 0
+    with EpisodeStore.open(store_path) as store:
+        assert store.meta.features["obs.env_state"].shape == (39,)
+        episode = store.read_episode(0, ["obs.state", "obs.env_state"])
+        np.testing.assert_array_equal(episode["obs.state"], episode["obs.env_state"][:, :4])  # the same state
+    assert main(["train", str(store_path), "--steps", "10", "--aux-target", "obs.env_state", "--out", str(run)]) == 0
+    policy = json.loads((run / "run.json").read_text())["policy"]
+    assert policy["obs"]["keys"] == ["obs.state"] and policy["spec"]["aux_dim"] == 39  # a target, not an input
+    assert main(["eval", str(run), "--episodes", "1"]) == 0
+    one_line_error(["collect", "--env", "metaworld:reach-v3", "--env-opt", "env_state=true", "--expert", "metaworld",
+                    "--episodes", "1", "--out", str(tmp_path / "x.zarr")], "without --env-opt camera")
 
 
 @pytest.mark.slow  # ~40 s: the whole set collected, one instruction-conditioned policy trained and evaluated

@@ -51,6 +51,15 @@ def test_a_store_with_cameras_trains_on_images_and_proprioception_by_default() -
         spec.check_against({**FEATURES, "obs.image_front": FeatureSpec((16, 16, 3), "uint8")}, "env")
 
 
+def test_a_foreign_camera_store_trains_on_its_own_state_and_never_on_the_simulators() -> None:
+    # A Gymnasium env's camera + state (Meta-World from its corner camera), with the simulator's state recorded
+    # beside them for --aux-target: the default inputs leave that out, and naming it still works.
+    features = {"obs.image_corner": FeatureSpec((8, 8, 3), "uint8"), "obs.state": FeatureSpec((4,)),
+                "obs.env_state": FeatureSpec((39,))}
+    assert ObsSpec.from_features(features).keys == ("obs.state",)
+    assert ObsSpec.from_features(features, ["images", "obs.state", "obs.env_state"]).keys == ("obs.state", "obs.env_state")
+
+
 def test_vector_and_batch_agree_and_transform() -> None:
     spec = ObsSpec.from_features(STATE_FEATURES)
     rng = np.random.default_rng(0)
