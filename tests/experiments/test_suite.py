@@ -114,3 +114,14 @@ def test_one_policy_for_the_whole_suite_in_miniature(tmp_path: Path, one_line_er
     one_line_error(["bench", "suite", "metaworld-mt10", "--one-policy", "--tasks", "reach-v3"], "--tasks",
                    "whole suite")
     one_line_error(["bench", "suite", "metaworld-mt10", "--no-instructions"], "--one-policy")
+
+
+def test_one_policy_from_the_camera_records_the_state_it_is_trained_to_predict() -> None:
+    from demo.experiments.suite import SuiteConfig, collect_config, one_policy_bc
+
+    camera = SuiteConfig(one_policy=True, camera="corner@64x64")
+    assert collect_config(camera, "MT10").task_options == {"camera": "corner@64x64", "env_state": True}
+    assert one_policy_bc(camera)["aux_target"] == "obs.env_state" and one_policy_bc(camera)["steps"] == 20000
+    # From state, or one policy per task from the camera: no state beside it, no auxiliary target.
+    assert "env_state" not in collect_config(SuiteConfig(camera="corner@64x64"), "reach-v3").task_options
+    assert "aux_target" not in one_policy_bc(SuiteConfig(one_policy=True))
