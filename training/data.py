@@ -185,12 +185,12 @@ class TrainingData:
 
     def reload(self, store: EpisodeStore, train_episodes: np.ndarray, val_episodes: np.ndarray) -> "TrainingData":
         """The store's frames now (it may have grown) with another split and *these* normalisers."""
-        raw = _load_arrays(store, self.obs_spec, self.relative)
+        raw = _load_arrays(store, self.obs_spec, self.relative, self.aux_keys)
         instructions = None
         if self.instructions is not None:  # the same vocabulary: new words are unknown to it
             instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3],
                                            self.instructions.pretrained)
-        aux = None if self.aux_norm is None else _normalized_obs(_load_aux(store, self.aux_keys), self.aux_norm)
+        aux = None if self.aux_norm is None else _normalized_obs(raw[7], self.aux_norm)
         return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
                        ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
                        sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions,
@@ -282,7 +282,8 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
               obs_spec: ObsSpec, relative: RelativeActions | None) -> TrainingData:
     """The stores' frames one after another with their splits (episode indices offset), the
     minimum checked, normalisers fitted on the training frames of all of them."""
-    parts = [_load_arrays(store, obs_spec, relative) for store in stores]
+    targets = aux_keys(config.aux_target, stores, obs_spec) if config.aux_target else ()
+    parts = [_load_arrays(store, obs_spec, relative, targets) for store in stores]
     first_episode = np.cumsum([0] + [len(p[3]) for p in parts])
     first_frame = np.cumsum([0] + [int(p[3][-1]) if len(p[3]) else 0 for p in parts])
     obs, action = _join([p[0] for p in parts]), _join([p[1] for p in parts])
@@ -317,9 +318,9 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
         spec = replace(spec, vocab=instructions.tokenizer.vocab_size, max_tokens=instructions.tokenizer.max_tokens)
     data = TrainingData(_normalized_obs(obs, obs_norm), action, base, ends, labelled, train_eps, val_eps, obs_spec,
                         obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions, tuple(config.mix))
-    if config.aux_target:
-        data.aux_keys = aux_keys(config.aux_target, stores, obs_spec)
-        raw_aux = _join([_load_aux(store, data.aux_keys) for store in stores])
+    if targets:
+        data.aux_keys = targets
+        raw_aux = _join([p[7] for p in parts])
         data.aux_norm = MinMaxNormalizer.fit(raw_aux[frames])
         data.aux = _normalized_obs(raw_aux, data.aux_norm)
         data.spec = replace(spec, aux_dim=raw_aux.shape[1])
@@ -367,9 +368,9 @@ def aux_keys(given: str, stores: Sequence[EpisodeStore], obs_spec: ObsSpec) -> t
     return keys
 
 
-def _load_aux(store: EpisodeStore, keys: Sequence[str]) -> np.ndarray:
-    """``[N, D]``: the store's frames of ``keys``, each flattened per frame, side by side (float32)."""
-    arrays, _ = store.load(list(keys))
+def _flattened(arrays: dict[str, np.ndarray], keys: Sequence[str]) -> np.ndarray:
+    """``[N, D]``: the frames of ``keys``, each flattened per frame, side by side (float32). Not ``ObsSpec.concat``:
+    a quaternion target stays a quaternion."""
     return np.concatenate([np.asarray(arrays[k], np.float32).reshape(len(arrays[k]), -1) for k in keys], axis=1)
 
 
@@ -415,13 +416,12 @@ def _chunk_rows(chunks: np.ndarray | None, n: int, horizon: int, dim: int) -> np
     return out
 
 
-def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None):
+def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None, targets: Sequence[str] = ()):
     """Concatenated observations, actions, relative-action bases, episode ends, label flags, images,
-    chunk labels."""
+    chunk labels, and the ``--aux-target`` keys ``targets`` flattened side by side (None without), in one read."""
     flags = [k for k in (LABEL_KEY, CHUNK_KEY, HAS_CHUNK_KEY) if k in store.meta.features]
     keys = [*obs_spec.source_keys, *obs_spec.images, "action", *flags]
-    if relative is not None and relative.obs_key not in keys:
-        keys.append(relative.obs_key)
+    keys += [k for k in (*([relative.obs_key] if relative is not None else []), *targets) if k not in keys]
     arrays, ends = store.load(keys)
     labelled = arrays[LABEL_KEY].reshape(-1).astype(bool) if LABEL_KEY in arrays else None
     action = np.asarray(arrays["action"], dtype=np.float32)
@@ -431,7 +431,8 @@ def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActio
     if CHUNK_KEY in arrays and HAS_CHUNK_KEY in arrays:  # NaN marks a frame without one from here on
         chunks = np.asarray(arrays[CHUNK_KEY], dtype=np.float32).copy()
         chunks[arrays[HAS_CHUNK_KEY].reshape(-1) == 0] = np.nan
-    return obs_spec.concat(arrays), action, base, ends, labelled, images, chunks
+    aux = _flattened(arrays, targets) if targets else None
+    return obs_spec.concat(arrays), action, base, ends, labelled, images, chunks, aux
 
 
 def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:
