@@ -84,8 +84,11 @@ ONE_POLICY: dict[str, dict[str, Any]] = {
 # --one-policy --camera: the encoders also predict the benchmark's 39-D state, recorded beside the camera (a target
 # in training, never an input), and the words FiLM the encoders and the MLP. MT10 from corner@64x64: 89.6% at 20,000
 # steps; 71.6% with the instruction appended and neither (docs/environments.md). MT50 from the camera: not measured.
-ONE_POLICY_CAMERA: dict[str, Any] = {"steps": 20000, "aux_target": "obs.env_state",
-                                     "text": {"film_images": True, "film_image_head": True}}
+_FROM_CAMERA = {"aux_target": "obs.env_state", "text": {"film_images": True, "film_image_head": True}}
+ONE_POLICY_CAMERA: dict[str, dict[str, Any]] = {
+    "metaworld-mt10": {**_FROM_CAMERA, "steps": 20000},
+    "metaworld-mt50": _FROM_CAMERA,  # MT50's steps and MLP (ONE_POLICY)
+}
 
 
 @dataclass
@@ -97,8 +100,8 @@ class SuiteConfig:
     episodes: int | None = setting(None, "Evaluation episodes per task (seeds disjoint from the demonstrations').",
                                    unset="metaworld 50, aloha 100")
     seed: int = setting(0, "Seed of the demonstrations, training and evaluation.")
-    steps: int | None = setting(None, "BC steps.", unset="demo train's; --one-policy: MT10 15000, MT50 40000, from "
-                                                      "a camera 20000")
+    steps: int | None = setting(None, "BC steps.", unset="demo train's; --one-policy: MT10 15000 (from a camera "
+                                                      "20000), MT50 40000")
     # Single-step is the measured best here: MT10 97.8% against 96.2% with 16-step ensembled chunks (demo train's
     # default); MT50's handle-pull 50/50 against 0/50 (docs/environments.md).
     chunk: int | None = setting(None, "The policy's chunk (1: single-step, ensembling off; > 1: ensembled chunks).",
@@ -221,7 +224,7 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
 def one_policy_bc(c: SuiteConfig) -> dict[str, Any]:
     """--one-policy's BC settings: the suite's own (:data:`ONE_POLICY`), from a camera with
     :data:`ONE_POLICY_CAMERA` over them."""
-    return {**ONE_POLICY[c.suite], **(ONE_POLICY_CAMERA if c.camera else {})}
+    return {**ONE_POLICY[c.suite], **(ONE_POLICY_CAMERA[c.suite] if c.camera else {})}
 
 
 def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]:

@@ -125,3 +125,5 @@ def test_one_policy_from_the_camera_records_the_state_it_is_trained_to_predict()
     # From state, or one policy per task from the camera: no state beside it, no auxiliary target.
     assert "env_state" not in collect_config(SuiteConfig(camera="corner@64x64"), "reach-v3").task_options
     assert "aux_target" not in one_policy_bc(SuiteConfig(one_policy=True))
+    mt50 = one_policy_bc(SuiteConfig(suite="metaworld-mt50", one_policy=True, camera="corner@64x64"))
+    assert mt50["steps"] == 40000 and mt50["aux_target"] == "obs.env_state"  # MT50's own steps kept
