@@ -17,6 +17,7 @@ environment comes back as one line, and an interpreter that dies is named with t
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import tempfile
@@ -95,7 +96,9 @@ class ProcessEnv(gymnasium.Env):
         finally:
             for stream in (proc.stdin, proc.stdout):
                 if stream is not None:
-                    stream.close()
+                    # A dead worker's stdin may still hold what a failed write buffered: flushing it breaks the pipe.
+                    with contextlib.suppress(OSError):
+                        stream.close()
             self._stderr.close()
 
     # ------------------------------------------------------------------ the pipe
