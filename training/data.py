@@ -420,8 +420,8 @@ def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActio
     """Concatenated observations, actions, relative-action bases, episode ends, label flags, images,
     chunk labels, and the ``--aux-target`` keys ``targets`` flattened side by side (None without), in one read."""
     flags = [k for k in (LABEL_KEY, CHUNK_KEY, HAS_CHUNK_KEY) if k in store.meta.features]
-    keys = [*obs_spec.source_keys, *obs_spec.images, "action", *flags]
-    keys += [k for k in (*([relative.obs_key] if relative is not None else []), *targets) if k not in keys]
+    base_key = [relative.obs_key] if relative is not None else []
+    keys = list(dict.fromkeys([*obs_spec.source_keys, *obs_spec.images, "action", *flags, *base_key, *targets]))
     arrays, ends = store.load(keys)
     labelled = arrays[LABEL_KEY].reshape(-1).astype(bool) if LABEL_KEY in arrays else None
     action = np.asarray(arrays["action"], dtype=np.float32)
