@@ -68,6 +68,9 @@ def collect(
                                     "words (the episode table's instruction column; an instruction-conditioned policy "
                                     "trains on it).", show_default="the environment's own (Meta-World's task as a "
                                     "sentence), else none"),
+    every_goal: bool = typer.Option(False, "--every-goal", help="scripted: demonstrate every start state once per goal "
+                                    "its words can name (pick --task-opt colours=3: three episodes per scene, one per "
+                                    "cube), so that the same images differ only in the instruction."),
     append: bool = typer.Option(False, "--append", help="Append to an existing store of the same task and robot."),
     min_success: float = typer.Option(
         None, "--min-success", metavar="P", min=0.0, max=1.0,
@@ -89,8 +92,9 @@ def collect(
         if workers > 1 or noise > 0 or executor != "process" or address or randomize:
             raise DemoError("--source", f"{source} replays recorded input: --workers > 1, --executor, --address, "
                                         "--noise and --randomize do not apply")
-        if min_success is not None:
-            raise DemoError("--min-success", "applies to --source scripted (the scripted experts)")
+        if min_success is not None or every_goal:
+            raise DemoError("--min-success" if min_success is not None else "--every-goal",
+                            "applies to --source scripted (the scripted experts)")
     if env is not None and source not in ("scripted", "leader"):
         raise DemoError("--env", "collects from an environment's expert (--source scripted) or from the leader arms "
                                  "of a robot of several arms (--source leader --robot ARMS.toml)")
@@ -104,7 +108,7 @@ def collect(
             config = CollectConfig(task=task, episodes=episodes, seed=seed, operator=operator or "expert", noise=noise,
                                    robot=robot_config, task_options=options, cameras=cameras, expert=expert,
                                    randomize=Randomization.parse(randomize).to_json() if randomize else {},
-                                   instruction=instruction)
+                                   instruction=instruction, every_goal=every_goal)
             result = collect_scripted(config, out, executor=ExecutorConfig(executor, workers, address), append=append,
                                       overwrite=overwrite, progress=progress)
         else:

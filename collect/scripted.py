@@ -16,7 +16,10 @@ side). Each start state is then demonstrated both ways and the data are a genuin
 conditional. With one demonstration per start state the side is a function of the start state
 that networks learn: diffusion and MSE-BC policies trained on such data re-took the demonstrated
 side from 92% of its start states, and a diffusion policy sampled both sides from 1 start in 20.
-The store's ``seed`` column is the reset seed: the two episodes of a pair share it.
+With ``every_goal`` (``demo collect --every-goal``, a task whose words choose among goals: pick's coloured
+cubes), the ``K`` episodes ``Kk .. Kk + K - 1`` start from ``episode_seed(S, k)`` and ask for each of the
+``K`` goals in turn (the first for the one the seed draws): the same images, told apart by the words alone.
+The store's ``seed`` column is the reset seed: the episodes of a pair or group share it.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from demo.sim import load_robot, make_env
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.randomize import Randomization
+from demo.sim.tasks import TASKS
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
@@ -67,6 +71,9 @@ class CollectConfig:
     # What every episode is told to do (the episode table's instruction column); None: the environment's own,
     # if it has one (a task set's member: Meta-World's task as a sentence)
     instruction: str | None = None
+    # Every start state demonstrated once per goal its words can name (pick with colours=K: K consecutive
+    # episodes from one reset seed, each asking for another cube), so identical scenes differ only in the words
+    every_goal: bool = False
 
 
 def make_env_for(config: CollectConfig) -> Any:
@@ -83,9 +90,22 @@ def make_env_for(config: CollectConfig) -> Any:
 BIMODAL_TASKS = ("avoid",)  # tasks whose expert demonstrates one of two modes, demonstrated in pairs
 
 
+def episodes_per_start(config: CollectConfig) -> int:
+    """How many consecutive episodes share a start state: a bimodal task's pair, ``every_goal``'s goals, else 1."""
+    if config.task in BIMODAL_TASKS:
+        return 2
+    if config.every_goal:
+        goals = TASKS[config.task](**config.task_options).goals if config.task in TASKS else 0
+        if goals < 2:
+            raise DemoError("--every-goal", f"task {config.task} with options {config.task_options or '{}'} names no "
+                                            "choice of goal in words (pick with --task-opt colours=2 or 3 does)")
+        return goals
+    return 1
+
+
 def start_seed(config: CollectConfig, index: int) -> int:
-    """The ``env.reset`` seed of episode ``index``: on a bimodal task the two episodes of a pair share it."""
-    return episode_seed(config.seed, index // 2 if config.task in BIMODAL_TASKS else index)
+    """The ``env.reset`` seed of episode ``index``: the episodes of a group (:func:`episodes_per_start`) share it."""
+    return episode_seed(config.seed, index // episodes_per_start(config))
 
 
 def balanced_modes(config: CollectConfig, index: int) -> dict[str, Any]:
@@ -114,6 +134,8 @@ def scripted_episode(env: Any, config: CollectConfig, index: int) -> tuple[dict[
     n_arm = len(env.robot.arm_joints)
     operator = Operator(profile, rng, env.fps, env.horizon, n_arm) if profile.name != "expert" else None
     env.reset(seed)
+    if config.every_goal:  # the group's first episode asks for the goal the seed drew, the next ones for the others
+        env.task.shift_goal(index % episodes_per_start(config))
     style = {**(operator.expert_style if operator else {}), **balanced_modes(config, index)}
     expert = env.expert(rng=np.random.default_rng([seed, 2]), **style)
     last_sent: list[np.ndarray] = [hold_action(env)]
@@ -302,6 +324,7 @@ def collect_scripted(
     if is_foreign(config.task) and (config.operator != "expert" or config.robot or config.cameras):
         raise DemoError("--env", "a Gymnasium environment records its own expert, robot and cameras: --operator, "
                                  "--robot and --camera do not apply")
+    episodes_per_start(config)  # --every-goal on a task without goals in words fails here
     executor = executor or ExecutorConfig("process", workers)
     executor.check()
     get_profile(config.operator)

@@ -88,6 +88,7 @@ class Pick(Task):
             raise DemoError("pick", f"phrasing must be one of {', '.join(PHRASINGS)}, got {self.options['phrasing']!r}")
         self.names = ["cube"] if not self.colours else [f"cube_{c}" for c in list(COLOURS)[: self.colours]]
         self.target = 0  # which cube (index into names) the episode asks for
+        self.template = ""  # the instruction's template, "{}" for the target's colour
 
     @property
     def horizon(self) -> int:
@@ -132,7 +133,18 @@ class Pick(Task):
         if self.colours:
             self.target = int(rng.integers(self.colours))
             templates = PHRASINGS[self.options["phrasing"]]
-            self.instruction = templates[int(rng.integers(len(templates)))].format(list(COLOURS)[self.target])
+            self.template = templates[int(rng.integers(len(templates)))]
+            self.instruction = self.template.format(list(COLOURS)[self.target])
+
+    @property
+    def goals(self) -> int:
+        return self.colours
+
+    def shift_goal(self, offset: int) -> None:
+        if not self.colours:
+            super().shift_goal(offset)
+        self.target = (self.target + offset) % self.colours
+        self.instruction = self.template.format(list(COLOURS)[self.target])
 
     def box(self, env: "Env") -> BoxState:
         pos, quat = env.body_pose(self.body)

@@ -50,6 +50,17 @@ class Task:
     # coloured cubes name their target here at each reset)
     instruction: str = ""
 
+    @property
+    def goals(self) -> int:
+        """How many goals the words can name in one scene (0: a task whose goal the scene shows)."""
+        return 0
+
+    def shift_goal(self, offset: int) -> None:
+        """Ask, in the scene :meth:`reset` drew, for the goal ``offset`` places after the one it drew (modulo
+        :attr:`goals`), the instruction re-worded with the same template: one scene, another goal, told only
+        in words (``demo collect --every-goal``)."""
+        raise DemoError(self.name, "names no goal in words")
+
     def __init__(self, **options: Any):
         unknown = sorted(set(options) - set(self.defaults))
         if unknown:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -188,12 +189,12 @@ class TrainingData:
         raw = _load_arrays(store, self.obs_spec, self.relative, self.aux_keys)
         instructions = None
         if self.instructions is not None:  # the same vocabulary: new words are unknown to it
-            instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw[3],
+            instructions = Instructions.of(self.instructions.tokenizer, episode_instructions([store]), raw.ends,
                                            self.instructions.pretrained)
-        aux = None if self.aux_norm is None else _normalized_obs(raw[7], self.aux_norm)
-        return replace(self, obs=_normalized_obs(raw[0], self.obs_norm), images=raw[5], action=raw[1], base=raw[2],
-                       ends=raw[3], labelled=raw[4], train_episodes=train_episodes, val_episodes=val_episodes,
-                       sources=(Source(str(store.path), 0, len(raw[3])),), chunks=raw[6], instructions=instructions,
+        aux = None if self.aux_norm is None else _normalized_obs(raw.aux, self.aux_norm)
+        return replace(self, obs=_normalized_obs(raw.obs, self.obs_norm), images=raw.images, action=raw.action, base=raw.base,
+                       ends=raw.ends, labelled=raw.labelled, train_episodes=train_episodes, val_episodes=val_episodes,
+                       sources=(Source(str(store.path), 0, len(raw.ends)),), chunks=raw.chunks, instructions=instructions,
                        aux=aux)
 
 
@@ -284,22 +285,22 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     minimum checked, normalisers fitted on the training frames of all of them."""
     targets = aux_keys(config.aux_target, stores, obs_spec) if config.aux_target else ()
     parts = [_load_arrays(store, obs_spec, relative, targets) for store in stores]
-    first_episode = np.cumsum([0] + [len(p[3]) for p in parts])
-    first_frame = np.cumsum([0] + [int(p[3][-1]) if len(p[3]) else 0 for p in parts])
-    obs, action = _join([p[0] for p in parts]), _join([p[1] for p in parts])
-    base = None if relative is None else _join([p[2] for p in parts])
-    ends = _join([p[3] + first_frame[i] for i, p in enumerate(parts)])
+    first_episode = np.cumsum([0] + [len(p.ends) for p in parts])
+    first_frame = np.cumsum([0] + [int(p.ends[-1]) if len(p.ends) else 0 for p in parts])
+    obs, action = _join([p.obs for p in parts]), _join([p.action for p in parts])
+    base = None if relative is None else _join([p.base for p in parts])
+    ends = _join([p.ends + first_frame[i] for i, p in enumerate(parts)])
     labelled = None
-    if any(p[4] is not None for p in parts):  # a store without label flags is labelled throughout
-        labelled = _join([p[4] if p[4] is not None else np.ones(len(p[1]), bool) for p in parts])
-    images = {k: _join([p[5][k] for p in parts]) for k in obs_spec.images}
+    if any(p.labelled is not None for p in parts):  # a store without label flags is labelled throughout
+        labelled = _join([p.labelled if p.labelled is not None else np.ones(len(p.action), bool) for p in parts])
+    images = {k: _join([p.images[k] for p in parts]) for k in obs_spec.images}
     chunks = None
-    if any(p[6] is not None for p in parts):  # a store without chunk labels has none on any frame
-        horizon = max(p[6].shape[1] for p in parts if p[6] is not None)
-        chunks = _join([_chunk_rows(p[6], len(p[1]), horizon, p[1].shape[1]) for p in parts])
+    if any(p.chunks is not None for p in parts):  # a store without chunk labels has none on any frame
+        horizon = max(p.chunks.shape[1] for p in parts if p.chunks is not None)
+        chunks = _join([_chunk_rows(p.chunks, len(p.action), horizon, p.action.shape[1]) for p in parts])
     train_eps = _join([s[0] + first_episode[i] for i, s in enumerate(splits)])
     val_eps = _join([s[1] + first_episode[i] for i, s in enumerate(splits)])
-    sources = tuple(Source(str(s.path), int(first_episode[i]), len(p[3])) for i, (s, p) in enumerate(zip(stores, parts)))
+    sources = tuple(Source(str(s.path), int(first_episode[i]), len(p.ends)) for i, (s, p) in enumerate(zip(stores, parts)))
     frames = frame_indices(ends, train_eps)
     if labelled is not None:
         frames = frames[labelled[frames]]
@@ -320,7 +321,7 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
                         obs_norm, _UNIT, relative, spec, images, sources, chunks, instructions, tuple(config.mix))
     if targets:
         data.aux_keys = targets
-        raw_aux = _join([p[7] for p in parts])
+        raw_aux = _join([p.aux for p in parts])
         data.aux_norm = MinMaxNormalizer.fit(raw_aux[frames])
         data.aux = _normalized_obs(raw_aux, data.aux_norm)
         data.spec = replace(spec, aux_dim=raw_aux.shape[1])
@@ -416,9 +417,22 @@ def _chunk_rows(chunks: np.ndarray | None, n: int, horizon: int, dim: int) -> np
     return out
 
 
-def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None, targets: Sequence[str] = ()):
-    """Concatenated observations, actions, relative-action bases, episode ends, label flags, images,
-    chunk labels, and the ``--aux-target`` keys ``targets`` flattened side by side (None without), in one read."""
+class StoreArrays(NamedTuple):
+    """One store's frames as training reads them, unnormalised; every per-frame array has the store's frames."""
+
+    obs: np.ndarray  # [N, obs_dim] float32: the chosen low-dim keys concatenated (ObsSpec)
+    action: np.ndarray  # [N, A] float32
+    base: np.ndarray | None  # [N, ...]: the relative-action base per frame (None for absolute actions)
+    ends: np.ndarray  # [E] int: one past each episode's last frame
+    labelled: np.ndarray | None  # [N] bool: DAgger's expert-label flags (None: labelled throughout)
+    images: dict[str, np.ndarray]  # camera key -> [N, H, W, 3] uint8
+    chunks: np.ndarray | None  # [N, H, A] float32: chunk labels, NaN where a frame has none
+    aux: np.ndarray | None  # [N, D] float32: the --aux-target keys flattened side by side
+
+
+def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActions | None, targets: Sequence[str] = ()) -> StoreArrays:
+    """One store's arrays for training (:class:`StoreArrays`), read in one pass; ``targets`` are the
+    ``--aux-target`` keys."""
     flags = [k for k in (LABEL_KEY, CHUNK_KEY, HAS_CHUNK_KEY) if k in store.meta.features]
     base_key = [relative.obs_key] if relative is not None else []
     keys = list(dict.fromkeys([*obs_spec.source_keys, *obs_spec.images, "action", *flags, *base_key, *targets]))
@@ -432,7 +446,7 @@ def _load_arrays(store: EpisodeStore, obs_spec: ObsSpec, relative: RelativeActio
         chunks = np.asarray(arrays[CHUNK_KEY], dtype=np.float32).copy()
         chunks[arrays[HAS_CHUNK_KEY].reshape(-1) == 0] = np.nan
     aux = _flattened(arrays, targets) if targets else None
-    return obs_spec.concat(arrays), action, base, ends, labelled, images, chunks, aux
+    return StoreArrays(obs_spec.concat(arrays), action, base, ends, labelled, images, chunks, aux)
 
 
 def _normalized_obs(obs: np.ndarray, norm: MinMaxNormalizer) -> np.ndarray:

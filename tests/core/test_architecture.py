@@ -83,6 +83,8 @@ def violations(files: dict[str, str]) -> list[str]:
 
 def library_files() -> dict[str, str]:
     skip = {"tests", "tools", "docs", "build"}
+    # A virtual environment in the root (docs/environments.md's gym-aloha venv, `aloha/`) is no part of the library.
+    skip |= {p.parent.name for p in ROOT.glob("*/pyvenv.cfg")}
     return {str(p.relative_to(ROOT)): p.read_text() for p in ROOT.rglob("*.py")
             if p.relative_to(ROOT).parts[0] not in skip and not p.relative_to(ROOT).parts[0].startswith(".")}
 

@@ -96,3 +96,35 @@ def test_coloured_cubes_the_words_name_the_target(tmp_path, one_line_error):
                     str(tmp_path / "x.zarr")], "colours must be 0")
     one_line_error(["collect", "--task", "pick", "--task-opt", "colours", "--episodes", "1", "--out",
                     str(tmp_path / "x.zarr")], "--task-opt", "KEY=VALUE")
+
+
+def test_every_goal_repeats_each_scene_once_per_cube(tmp_path, one_line_error):
+    """--every-goal: three consecutive episodes share a reset seed, so their first frames are the same images,
+    and ask for the three cubes (the first for the one the seed draws); each is lifted by the expert. A task
+    whose words choose no goal is refused in one line, with nothing written."""
+    from demo.cli.main import main
+    from demo.seeds import episode_seed
+    from demo.store import EpisodeStore
+
+    out = tmp_path / "every.zarr"
+    assert main(["collect", "--task", "pick", "--task-opt", "colours=3", "--every-goal", "--episodes", "4",
+                 "--camera", "front@32x32", "--seed", "5", "--workers", "0", "--out", str(out)]) == 0
+    plain = make_env("pick", colours=3)
+    plain.reset(episode_seed(5, 0))
+    with EpisodeStore.open(out) as store:
+        seeds = store.column("seed").tolist()
+        told = store.column("instruction").tolist()
+        assert seeds[:3] == [episode_seed(5, 0)] * 3 and seeds[3] == episode_seed(5, 1)
+        assert told[0] == plain.instruction  # the seed's own goal first, as a plain collection asks
+        colours = [t.split()[-2] for t in told[:3]]
+        assert sorted(colours) == ["blue", "green", "red"] and len({t.split()[0] for t in told[:3]}) == 1
+        assert all(store.column("success"))
+        first = [store.read_episode(i, ["obs.image_front", "obs.object_pos"]) for i in range(3)]
+        for ep in first[1:]:
+            np.testing.assert_array_equal(ep["obs.image_front"][0], first[0]["obs.image_front"][0])
+            np.testing.assert_array_equal(ep["obs.object_pos"][0], first[0]["obs.object_pos"][0])
+        lifted = [int(np.argmax(ep["obs.object_pos"][-1][:, 2])) for ep in first]
+        assert [("red", "green", "blue")[k] for k in lifted] == colours
+    one_line_error(["collect", "--task", "pick", "--every-goal", "--episodes", "2", "--out", str(tmp_path / "x.zarr")],
+                   "--every-goal", "names no choice of goal")
+    assert not (tmp_path / "x.zarr").exists()
