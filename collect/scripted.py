@@ -44,8 +44,8 @@ from demo.sim import load_robot, make_env
 from demo.sim.foreign import is_foreign
 from demo.sim.foreign_set import ForeignEnvSet
 from demo.sim.randomize import Randomization
-from demo.sim.tasks import TASKS
 from demo.sim.rollout import Episode, StepCommand, env_store_meta, rollout
+from demo.sim.tasks import TASKS
 from demo.store import EpisodeStore, StoreMeta
 from demo.store.location import store_path
 from demo.store.output import open_output
@@ -92,15 +92,13 @@ BIMODAL_TASKS = ("avoid",)  # tasks whose expert demonstrates one of two modes, 
 
 def episodes_per_start(config: CollectConfig) -> int:
     """How many consecutive episodes share a start state: a bimodal task's pair, ``every_goal``'s goals, else 1."""
-    if config.task in BIMODAL_TASKS:
-        return 2
-    if config.every_goal:
+    if config.every_goal:  # checked first: a bimodal task's words name no goal either
         goals = TASKS[config.task](**config.task_options).goals if config.task in TASKS else 0
         if goals < 2:
             raise DemoError("--every-goal", f"task {config.task} with options {config.task_options or '{}'} names no "
                                             "choice of goal in words (pick with --task-opt colours=2 or 3 does)")
         return goals
-    return 1
+    return 2 if config.task in BIMODAL_TASKS else 1
 
 
 def start_seed(config: CollectConfig, index: int) -> int:

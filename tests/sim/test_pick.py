@@ -127,4 +127,6 @@ def test_every_goal_repeats_each_scene_once_per_cube(tmp_path, one_line_error):
         assert [("red", "green", "blue")[k] for k in lifted] == colours
     one_line_error(["collect", "--task", "pick", "--every-goal", "--episodes", "2", "--out", str(tmp_path / "x.zarr")],
                    "--every-goal", "names no choice of goal")
+    one_line_error(["collect", "--task", "avoid", "--every-goal", "--episodes", "2", "--out", str(tmp_path / "x.zarr")],
+                   "--every-goal", "names no choice of goal")  # its pairs are sides, not goals named in words
     assert not (tmp_path / "x.zarr").exists()
