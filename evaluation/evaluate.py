@@ -22,8 +22,8 @@ Joint-space actions are one arm's joint targets and never transfer.
 The flywheel (``demo eval --record STORE``): every rollout is appended to ``STORE`` as an episode
 (created with the evaluation environment's features, task and robot if absent, else checked to
 record the same), source ``policy``, with the columns ``run``, ``success`` and ``outcome``; this
-process alone writes, in episode order, so the store's bytes do not depend on ``--workers`` or
-``--executor``. ``demo curate``, then ``demo train`` (which keeps the successful episodes) turn a
+process alone writes, in episode order (a task set's member by member: its episodes run so, one member
+built at a time), so the store's bytes do not depend on ``--workers`` or ``--executor``. ``demo curate``, then ``demo train`` (which keeps the successful episodes) turn a
 deployed policy's own successes into training data. An ``error`` episode is not recorded (its last
 action was not finite).
 
@@ -315,11 +315,19 @@ def _worker_init(run: str, task: str, options: dict[str, Any], robot: str | None
                  device: str, randomize: dict[str, int] | None = None, instruction: str | None = None) -> None:
     torch.set_num_threads(1)
     bundle = load_bundle(run, device)
-    env = make_eval_env(bundle, task, options, robot)
+    env = one_member_at_a_time(make_eval_env(bundle, task, options, robot))
     if randomize:
         env.set_randomization(Randomization(randomize))
     _worker["env"] = env
     _worker["actor"] = make_actor(bundle, env, ExecConfig.from_json(execution), instruction)
+
+
+def one_member_at_a_time(env: Any) -> Any:
+    """``env``, a task set keeping one member built (:meth:`~demo.sim.foreign_set.ForeignEnvSet.keep_at_most`):
+    an evaluation runs each member's episodes together, and from a camera every member built costs a renderer."""
+    if isinstance(env, ForeignEnvSet):
+        env.keep_at_most(1)
+    return env
 
 
 def _worker_run(job: tuple[int, int, bool, bool]) -> EpisodeOutcome:
@@ -410,13 +418,16 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     seeds = eval_seeds(config.seed, config.episodes * per_task)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
     jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]
+    if per_task > 1:  # member by member (episode i runs in member i % n), each worker one member built at a time
+        jobs.sort(key=lambda job: (job[0] % per_task, job[0]))
+        one_member_at_a_time(env)
     start = time.perf_counter()
     outcomes: list[EpisodeOutcome] = []
     tell = or_silent(progress)
     store: Any = None  # --record: the store each rollout is appended to, opened once the environment validates
 
     def done(outcome: EpisodeOutcome) -> None:
-        if store is not None and outcome.data is not None:  # this process alone writes, in episode order
+        if store is not None and outcome.data is not None:  # this process alone writes, in the jobs' order
             told = {"instruction": config.instruction} if config.instruction else {}
             store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy", **told,
                                  operator="policy", run=str(run), outcome=outcome.outcome,
@@ -450,6 +461,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
         env.close()
     stack.close()
     seconds = time.perf_counter() - start
+    outcomes.sort(key=lambda o: o.index)  # a set's ran member by member
     result = summarize(outcomes)
     if per_task > 1:
         result["per_task"] = {name: summarize([o for o in outcomes if o.task == name]) for name in env.tasks}

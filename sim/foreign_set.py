@@ -10,12 +10,15 @@ store cut short holds every task about equally. The seed column stays what the m
 rebuilds to judge a run on every member, with a per-task table.
 
 Every member must record the same features and action as the first; one that does not is refused in
-one line naming it. Members are built when first selected (a Meta-World env takes a fraction of a second).
+one line naming it. Members are built when first selected (a Meta-World env takes a fraction of a second;
+from a camera one to three seconds and ~170 MB for its renderer, so a caller that runs each member's
+episodes together keeps one built at a time: :meth:`ForeignEnvSet.keep_at_most`, as ``demo eval`` does).
 """
 
 from __future__ import annotations
 
 import importlib
+from collections import OrderedDict
 from typing import Any
 
 from demo.errors import DemoError
@@ -46,25 +49,47 @@ class ForeignEnvSet:
         self.name = ENV_PREFIX + name.removeprefix(ENV_PREFIX)
         self.options = dict(options)
         self.tasks = [ENV_PREFIX + m for m in members]
-        self._members: dict[int, ForeignEnv] = {}
-        first = self.member(0)
+        first = ForeignEnv(self.tasks[0], **self.options)
+        self._members: OrderedDict[int, ForeignEnv] = OrderedDict({0: first})  # the built ones, least recent first
+        self._max_live: int | None = None  # members kept built at once (None: every one)
+        self._first_record = first.record()
         self.features, self.action_spec, self.cameras = first.features, first.action_spec, first.cameras
         self.fps, self.horizon = first.fps, first.horizon
         self.active = first
 
+    def keep_at_most(self, n: int) -> None:
+        """Keep at most ``n`` members built, closing the least recently selected beyond that. Why: from a camera
+        each member holds a renderer, and all of MT50's in each of two evaluation workers took 8.9 GB apiece;
+        a caller whose episodes go member by member (``demo eval``'s order) then builds each member once."""
+        if n < 1:
+            raise ValueError(f"keep at least one member built, got {n}")
+        self._max_live = n
+        self._close_beyond(n)
+
     def member(self, k: int) -> ForeignEnv:
         """Member ``k`` (built on first use; its features and action checked against the first member's)."""
-        if k not in self._members:
-            env = ForeignEnv(self.tasks[k], **self.options)
-            if self._members:
-                first = self._members[0]
-                if env.features != first.features or env.action_spec != first.action_spec:
-                    env.close()
-                    raise DemoError(f"--env {self.name.removeprefix(ENV_PREFIX)}",
-                                    f"member {env.name} records other features or another action than "
-                                    f"{first.name}; a set's members must share their spaces")
-            self._members[k] = env
-        return self._members[k]
+        if k in self._members:
+            self._members.move_to_end(k)
+            return self._members[k]
+        env = ForeignEnv(self.tasks[k], **self.options)
+        if env.features != self.features or env.action_spec != self.action_spec:
+            env.close()
+            raise DemoError(f"--env {self.name.removeprefix(ENV_PREFIX)}",
+                            f"member {env.name} records other features or another action than "
+                            f"{self.tasks[0]}; a set's members must share their spaces")
+        self._members[k] = env
+        if self._max_live is not None:
+            self._close_beyond(self._max_live)
+        return env
+
+    def built(self) -> list[int]:
+        """The members built now, least recently selected first."""
+        return list(self._members)
+
+    def _close_beyond(self, n: int) -> None:
+        while len(self._members) > n:
+            _, env = self._members.popitem(last=False)
+            env.close()
 
     def select(self, index: int) -> ForeignEnv:
         """The member that episode ``index`` runs in (``index % n``), now the active one."""
@@ -73,7 +98,7 @@ class ForeignEnvSet:
 
     def record(self) -> dict[str, Any]:
         """What a store and a run say of the set: the first member's record, with the set's name and members."""
-        return {**self.member(0).record(), "name": self.name.removeprefix(ENV_PREFIX), "id": None,
+        return {**self._first_record, "name": self.name.removeprefix(ENV_PREFIX), "id": None,
                 "tasks": [t.removeprefix(ENV_PREFIX) for t in self.tasks]}
 
     # The episode API is the active member's (select() first).

@@ -48,6 +48,26 @@ def test_a_task_set_collects_every_task_into_one_store_and_is_judged_per_task(tm
                     "--out", str(tmp_path / "y.zarr")], "is no Meta-World task")
 
 
+def test_a_task_set_keeps_at_most_the_members_asked_built() -> None:
+    from demo.sim.foreign_set import ForeignEnvSet, set_members
+
+    env = ForeignEnvSet("metaworld:MT10", set_members("metaworld:MT10"))
+    try:
+        for index in range(4):  # interleaved, every member stays built by default
+            env.select(index)
+        assert env.built() == [0, 1, 2, 3]
+        env.keep_at_most(2)
+        assert env.built() == [2, 3]  # the least recently selected closed
+        env.select(1)
+        assert env.built() == [3, 1] and env.active.name == "env:metaworld:push-v3"
+        first = env.select(0)  # rebuilt after being closed, and it still runs
+        first.reset(0)
+        assert env.built() == [1, 0] and np.isfinite(first.observe()["obs.state"]).all()
+        assert env.record()["tasks"][0] == "metaworld:reach-v3"  # read once, whether or not member 0 is built
+    finally:
+        env.close()
+
+
 @pytest.mark.slow  # ~30 s: one task collected, trained and evaluated in miniature
 def test_suite_in_miniature(tmp_path: Path) -> None:
     out = tmp_path / "suite.json"
