@@ -23,9 +23,9 @@ The flywheel (``demo eval --record STORE``): every rollout is appended to ``STOR
 (created with the evaluation environment's features, task and robot if absent, else checked to
 record the same), source ``policy``, with the columns ``run``, ``success`` and ``outcome``; this
 process alone writes, in episode order (a task set's member by member: its episodes run so, one member
-built at a time), so the store's bytes do not depend on ``--workers`` or ``--executor``. ``demo curate``, then ``demo train`` (which keeps the successful episodes) turn a
-deployed policy's own successes into training data. An ``error`` episode is not recorded (its last
-action was not finite).
+built at a time), so the store's bytes do not depend on ``--workers`` or ``--executor``. ``demo curate``,
+then ``demo train`` (which keeps the successful episodes) turn a deployed policy's own successes into
+training data. An ``error`` episode is not recorded (its last action was not finite).
 
 Evaluation is deterministic for a seed, whatever ``--workers`` and ``--executor`` (worker processes
 or Ray actors, :mod:`demo.executor`): every episode's state depends only
