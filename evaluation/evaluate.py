@@ -418,8 +418,8 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
     seeds = eval_seeds(config.seed, config.episodes * per_task)
     n_video = min(config.video_episodes, config.episodes) if config.video else 0
     jobs = [(i, s, i < n_video, config.record is not None) for i, s in enumerate(seeds)]
-    if per_task > 1:  # member by member (episode i runs in member i % n), each worker one member built at a time
-        jobs.sort(key=lambda job: (job[0] % per_task, job[0]))
+    if per_task > 1:  # member by member, each worker one member built at a time
+        jobs.sort(key=lambda job: (env.member_of(job[0]), job[0]))
         one_member_at_a_time(env)
     start = time.perf_counter()
     outcomes: list[EpisodeOutcome] = []

@@ -91,9 +91,13 @@ class ForeignEnvSet:
             _, env = self._members.popitem(last=False)
             env.close()
 
+    def member_of(self, index: int) -> int:
+        """Which member episode ``index`` runs in: the set's tasks in turn."""
+        return index % len(self.tasks)
+
     def select(self, index: int) -> ForeignEnv:
         """The member that episode ``index`` runs in (``index % n``), now the active one."""
-        self.active = self.member(index % len(self.tasks))
+        self.active = self.member(self.member_of(index))
         return self.active
 
     def record(self) -> dict[str, Any]:
