@@ -98,6 +98,7 @@ class EpisodeOutcome:
     states: np.ndarray | None = None  # sim.state per frame, when recorded (for videos)
     data: dict[str, np.ndarray] | None = None  # every recorded frame, when the rollout is kept (--record)
     task: str = ""  # the member of a task set it ran in (demo.sim.foreign_set); "" for one environment
+    instruction: str = ""  # what the episode was told (--instruction, else the environment's own); "" for none
 
     def to_json(self) -> dict[str, Any]:
         d = {
@@ -112,6 +113,8 @@ class EpisodeOutcome:
             d["error"] = self.error
         if self.task:
             d["task"] = self.task
+        if self.instruction:
+            d["instruction"] = self.instruction
         return d
 
 
@@ -240,6 +243,7 @@ def run_episode(env: Any, actor: PolicyActor, index: int, seed: int, record: boo
     member = env.select(index) if isinstance(env, ForeignEnvSet) else None
     outcome = _run_episode(member or env, actor, index, seed, record, max_steps, keep)
     outcome.task = member.name if member is not None else ""
+    outcome.instruction = actor.told
     return outcome
 
 
@@ -428,7 +432,7 @@ def evaluate(config: EvalConfig, progress: Progress | None = None) -> dict[str, 
 
     def done(outcome: EpisodeOutcome) -> None:
         if store is not None and outcome.data is not None:  # this process alone writes, in the jobs' order
-            told = {"instruction": config.instruction} if config.instruction else {}
+            told = {"instruction": outcome.instruction} if outcome.instruction else {}
             store.append_episode(outcome.data, success=outcome.success, seed=outcome.seed, source="policy", **told,
                                  operator="policy", run=str(run), outcome=outcome.outcome,
                                  **({"task": outcome.task} if outcome.task else {}),

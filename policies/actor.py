@@ -119,12 +119,13 @@ class PolicyActor:
         """Start an episode: clear history and chunks, seed the policy's sampling from ``seed``."""
         if self.adapter is not None and env is not None:
             self.adapter.reset(env)
+        # the episode's instruction: the one set on the actor, else the environment's own ("" for none)
+        self.told: str = self.instruction or getattr(env, "instruction", None) or ""
         if self.tokenizer is not None:
-            text = self.instruction or getattr(env, "instruction", None) or ""
-            if env is not None and not text:
+            if env is not None and not self.told:
                 raise DemoError("--instruction", "the policy follows instructions and this environment gives none: "
                                                  "tell it one")
-            self.tokens = self.tokenizer.encode([text])
+            self.tokens = self.tokenizer.encode([self.told])
         self.history: deque[np.ndarray] = deque(maxlen=self.n_obs)
         self.images: dict[str, deque[np.ndarray]] = {k: deque(maxlen=self.n_obs) for k in self.obs_spec.images}
         self.chunks: deque[tuple[int, np.ndarray]] = deque()  # (first step, [H, A] raw actions)

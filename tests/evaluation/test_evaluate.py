@@ -112,6 +112,8 @@ def test_wilson_interval() -> None:
 class _RamsObstacle:
     """An actor that holds the arm still after putting the avoid obstacle against the hand."""
 
+    told = ""  # the episode's instruction (none)
+
     def reset(self, seed: int, env: object = None) -> None:
         from demo.sim.avoid import OBSTACLE_HALF
 

@@ -100,8 +100,13 @@ def test_the_words_decide_the_goal(dots: Path, tmp_path: Path, monkeypatch: pyte
     bundle = load_bundle(tmp_path / "words")
     assert bundle.tokenizer is not None and bundle.policy.spec.vocab == bundle.tokenizer.vocab_size
     assert bundle.tokenizer.unknown_words("go to the green dot") == ["green"]
-    followed = evaluate(tmp_path / "words", tmp_path / "w.json")
+    followed = evaluate(tmp_path / "words", tmp_path / "w.json", "--record", str(tmp_path / "rollouts.zarr"))
     assert followed["success_rate"] >= 0.9, followed["success_rate"]
+    # each episode's instruction (the environment's own here) is in the JSON and the recorded store alike
+    each = [episode["instruction"] for episode in followed["episodes_detail"]]
+    assert set(each) == set(told)
+    with EpisodeStore.open(tmp_path / "rollouts.zarr") as rollouts:
+        assert rollouts.column("instruction").tolist() == each
     per_task = json.loads((tmp_path / "words" / "metrics.json").read_text())["val_loss_per_instruction"]
     assert set(per_task) == set(told) and all(0 < v < 1 for v in per_task.values())  # each task validated alone
 
@@ -114,6 +119,7 @@ def test_the_words_decide_the_goal(dots: Path, tmp_path: Path, monkeypatch: pyte
     # Told the other colour than the environment wants, the policy goes there: success falls.
     red = evaluate(tmp_path / "words", tmp_path / "r.json", "--instruction", "go to the RED dot")
     assert red["instruction"] == "go to the RED dot" and red["unknown_words"] == []
+    assert {episode["instruction"] for episode in red["episodes_detail"]} == {"go to the RED dot"}
     assert red["success_rate"] < followed["success_rate"] - 0.25
 
 

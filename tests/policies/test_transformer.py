@@ -29,14 +29,20 @@ def test_from_cameras_training_hides_the_joints_from_attention() -> None:
     action, pad = torch.randn(8, 6, 3), torch.zeros(8, 6, dtype=torch.bool)
     never = build_policy("transformer", spec, {**TINY, "state_dropout": 0.0}).train()
     never.load_state_dict(policy.state_dict())
-    plain = ((never(obs) - action).square()).mean().item()
+    plain = ((never(obs) - action).abs()).mean().item()  # the chunk's L1, the default
     assert never.loss(obs, action, pad).item() == pytest.approx(plain, rel=1e-6)
     torch.manual_seed(1)
     assert policy.train().loss(obs, action, pad).item() != pytest.approx(plain, rel=1e-6)
     # without cameras nothing is hidden, whatever the setting
     state_only = build_policy("transformer", PolicySpec(obs_dim=5, action_dim=3, n_obs=2, horizon=6), TINY).train()
     assert state_only.loss(obs, action, pad).item() == pytest.approx(
-        ((state_only(obs) - action).square()).mean().item(), rel=1e-6)
+        ((state_only(obs) - action).abs()).mean().item(), rel=1e-6)
+    squared = build_policy("transformer", spec, {**TINY, "state_dropout": 0.0, "loss": "mse"}).train()
+    squared.load_state_dict(policy.state_dict())
+    assert squared.loss(obs, action, pad).item() == pytest.approx(((squared(obs) - action).square()).mean().item(),
+                                                                  rel=1e-6)
+    with pytest.raises(DemoError, match="loss"):
+        build_policy("transformer", spec, {"loss": "huber"})
     with pytest.raises(DemoError, match="state_dropout"):
         build_policy("transformer", spec, {"state_dropout": 1.0})
 
