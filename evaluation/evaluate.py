@@ -21,7 +21,8 @@ Joint-space actions are one arm's joint targets and never transfer.
 
 The flywheel (``demo eval --record STORE``): every rollout is appended to ``STORE`` as an episode
 (created with the evaluation environment's features, task and robot if absent, else checked to
-record the same), source ``policy``, with the columns ``run``, ``success`` and ``outcome``; this
+record the same), source ``policy``, with the columns ``run``, ``success``, ``outcome`` and ``instruction``
+(what the episode was told, :attr:`EpisodeOutcome.instruction`); this
 process alone writes, in episode order (a task set's member by member: its episodes run so, one member
 built at a time), so the store's bytes do not depend on ``--workers`` or ``--executor``. ``demo curate``,
 then ``demo train`` (which keeps the successful episodes) turn a deployed policy's own successes into

@@ -96,7 +96,7 @@ class ForeignEnvSet:
         return index % len(self.tasks)
 
     def select(self, index: int) -> ForeignEnv:
-        """The member that episode ``index`` runs in (``index % n``), now the active one."""
+        """The member that episode ``index`` runs in (:meth:`member_of`), now the active one."""
         self.active = self.member(self.member_of(index))
         return self.active
 
