@@ -121,11 +121,11 @@ def hide_state_draw(training: bool, batch: int, p: float, tokens_per_frame: int,
     return torch.rand(batch, device=device) < p
 
 
-def state_token_padding(hide_state: torch.Tensor, frames: int, tokens_per_frame: int) -> torch.Tensor:
+def state_token_padding(hide_state: torch.Tensor, frames: int, tokens_per_frame: int, state_tokens: int = 1) -> torch.Tensor:
     """The key padding mask ``[B, frames * tokens_per_frame]`` (True: hidden) of frame tokens laid out frame by frame,
-    the proprioception first in each frame: each hidden sample's proprioception tokens, nothing else."""
+    the proprioception's ``state_tokens`` first in each frame: each hidden sample's proprioception tokens, nothing else."""
     state_token = torch.zeros(tokens_per_frame, dtype=torch.bool, device=hide_state.device)
-    state_token[0] = True
+    state_token[:state_tokens] = True
     return (hide_state[:, None, None] & state_token).expand(-1, frames, -1).flatten(1)
 
 

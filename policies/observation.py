@@ -233,6 +233,17 @@ class ObsSpec:
         shapes = tuple(tuple(int(x) for x in features[k].shape) for k in images)
         return cls(tuple(chosen), tuple(dims), tuple(transforms), tuple(images), shapes)  # type: ignore[arg-type]
 
+    def layout(self, features: Mapping[str, FeatureSpec]) -> tuple[tuple[int, int], ...]:
+        """Per low-dim key, in the vector's order: ``(rows, values per row)``. A key of shape ``(N, k)`` (one row
+        per object: three cubes' positions are ``(3, 3)``) holds N rows, any other key one; a difference
+        ``obs.a-obs.b`` has ``obs.a``'s rows."""
+        out = []
+        for key, d, t in zip(self.keys, self.dims, self.transforms):
+            shape = features[_difference(key)[0] if t in PAIRED else key].shape  # type: ignore[index]
+            rows = int(shape[0]) if len(shape) >= 2 and shape[0] > 0 and d % int(shape[0]) == 0 else 1
+            out.append((rows, d // rows))
+        return tuple(out)
+
     def _part(self, data: Mapping[str, np.ndarray], key: str, d: int, transform: str, n: int | None) -> np.ndarray:
         if transform in PAIRED:
             a, b = _difference(key)  # type: ignore[misc]

@@ -58,6 +58,9 @@ class PolicySpec:
     # A policy from cameras trained to predict a state from its cameras' features as well (demo train --aux-target:
     # demo.policies.visuomotor): that state's width; 0 = none. Read in training only.
     aux_dim: int = 0
+    # How the low-dim vector is laid out, per observation key in its order: (rows, values per row); a key holding one
+    # row per object (three cubes' positions, (3, 3)) has 3 rows (ObsSpec.layout). () = not known (a run before it).
+    obs_layout: tuple[tuple[int, int], ...] = ()
     # Set by a wrapper for the policy inside it (never recorded; the wrapper derives them again):
     # how one frame's vector splits into tokens (the low-dim part, then each camera's features; () = one
     # token), and the width of the instruction's per-word tokens a policy that ``takes_tokens`` reads (0 = none).
@@ -73,6 +76,9 @@ class PolicySpec:
                              if k not in ("images", "token_dims", "text_dim", "film_cameras", "film_head")}
         if self.images:  # recorded only when set: state runs read as before
             d["images"] = [list(i) for i in self.images]
+        d.pop("obs_layout")
+        if self.obs_layout:
+            d["obs_layout"] = [list(row) for row in self.obs_layout]
         if not self.vocab:
             del d["vocab"], d["max_tokens"]
         for key in ("cond_dim", "prefix", "aux_dim"):
@@ -83,7 +89,9 @@ class PolicySpec:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "PolicySpec":
         images = tuple((str(k), int(h), int(w)) for k, h, w in d.get("images") or ())
-        return cls(**{k: int(v) for k, v in d.items() if k != "images"}, images=images)
+        layout = tuple((int(rows), int(width)) for rows, width in d.get("obs_layout") or ())
+        return cls(**{k: int(v) for k, v in d.items() if k not in ("images", "obs_layout")}, images=images,
+                   obs_layout=layout)
 
 
 class Policy(nn.Module):

@@ -313,7 +313,7 @@ def _assemble(config: TrainConfig, stores: Sequence[EpisodeStore], splits: Seque
     obs_norm = MinMaxNormalizer.fit(obs[frames])
     cameras = tuple((key, shape[0], shape[1]) for key, shape in zip(obs_spec.images, obs_spec.image_shapes))
     spec = PolicySpec(obs_spec.dim, stores[0].meta.action.dim, config.n_obs, config.chunk, cameras,
-                      prefix=config.prefix_steps)
+                      prefix=config.prefix_steps, obs_layout=obs_spec.layout(stores[0].meta.features))
     instructions = _instructions(config, stores, sources, ends, train_eps)
     if instructions is not None:
         spec = replace(spec, vocab=instructions.tokenizer.vocab_size, max_tokens=instructions.tokenizer.max_tokens)

@@ -52,7 +52,7 @@ def test_round_trip_gives_the_same_actions(run_dir: Path) -> None:
 
 def test_run_records_what_eval_needs(run_dir: Path) -> None:
     run = json.loads((run_dir / ckpt.RUN_FILE).read_text())
-    assert run["policy"]["spec"] == {"obs_dim": 6, "action_dim": 8, "n_obs": 2, "horizon": 4}
+    assert run["policy"]["spec"] == {"obs_dim": 6, "action_dim": 8, "n_obs": 2, "horizon": 4, "obs_layout": [[1, 6]]}
     assert run["policy"]["obs"]["keys"] == ["obs.state"]
     assert run["policy"]["action"]["name"] == "joint_pos"
     assert run["policy"]["execution"] == {"execute": 1, "ensemble": 0.01}

@@ -32,6 +32,8 @@ def test_default_keys_drop_velocities_and_add_offsets() -> None:
     assert spec.dims == (7, 3, 6, 6, 12, 6)
     assert spec.source_keys == ["obs.joint_pos", "obs.ee_pos", "obs.ee_quat", "obs.object_pos", "obs.object_quat"]
     assert "obs.joint_vel" in ObsSpec.from_features(FEATURES, ["all"]).keys
+    # by key, rows of values: each object its own row, its quaternion as a 6D rotation, an offset per object
+    assert spec.layout(STATE_FEATURES) == ((1, 7), (1, 3), (1, 6), (2, 3), (2, 6), (2, 3))
 
 
 def test_a_store_with_cameras_trains_on_images_and_proprioception_by_default() -> None:
