@@ -73,10 +73,9 @@ class PolicySpec:
 
     def to_json(self) -> dict[str, Any]:
         d: dict[str, Any] = {k: v for k, v in dataclasses.asdict(self).items()
-                             if k not in ("images", "token_dims", "text_dim", "film_cameras", "film_head")}
+                             if k not in ("images", "obs_layout", "token_dims", "text_dim", "film_cameras", "film_head")}
         if self.images:  # recorded only when set: state runs read as before
             d["images"] = [list(i) for i in self.images]
-        d.pop("obs_layout")
         if self.obs_layout:
             d["obs_layout"] = [list(row) for row in self.obs_layout]
         if not self.vocab:
