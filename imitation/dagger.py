@@ -35,8 +35,9 @@ members' hooks in :class:`Family`, their configuration in :mod:`demo.imitation.c
    matter a fraction of the input range (on ``stack``, the joint ranges were 4x wider after the
    rounds; inputs outside the demonstrations' ranges are clipped, see
    :data:`demo.policies.normalizer.OBS_CLIP`).
-   ``refit_normalizers`` refits them to the aggregate instead; ``warm_start`` fine-tunes the
-   previous learner instead of training a new one (cheaper).
+   ``refit_normalizers`` refits them to the aggregate's labelled frames instead (the default with
+   segment labels, below, whose labelled frames are the expert's own states); ``warm_start`` fine-tunes
+   the previous learner instead of training a new one (cheaper).
 
 Expert labels are counted: every frame of DATA's episodes that training used (validation
 included) plus every labelled frame of every round, so comparisons with BC can be made at equal
@@ -68,7 +69,12 @@ labels at the states a learner visits next are answers in states the expert woul
 a window of them is not the plan a chunked learner is trained to predict (pick from 10 demos, 5 rounds x
 10 rollouts: 5/100 with such windows, 46/100 with chunk labels). Under HG-DAgger's gate the labels are
 the expert's own consecutive actions while it is in control, which already are its plan: dense
-single-step labels there (96/100 at 2,322 labels; chunk labels every 16 steps: 87/100). Everything else
+single-step labels there (96/100 at 2,322 labels; chunk labels every 16 steps: 87/100). By default the
+look-ahead is kept whole, its states included (*segment labels*, ``segment_labels``; :func:`expert_segment`):
+a short demonstration from the visited state, stored as an episode of its own beside the rollout (source
+:data:`SEGMENT_SOURCE`, its labels counted on the rollout), so the same labels train a window at each of its
+states, not one (pick, the same settings: 69/100 with chunk labels, 80/100 with segments, 94/100 with the
+normalisers refit to them). Everything else
 of a run (seeding, the run directory, the loop, checkpoints, metrics) is the shared
 :class:`demo.training.trainer.TrainingRun`'s; this file holds only what is DAgger's own.
 """
@@ -111,6 +117,7 @@ from demo.training.trainer import TrainingRun
 DATA_DIR = "data.zarr"
 GRIPPER_GATE = 0.5  # HG-DAgger: a gripper command this far (of 0 open .. 1 closed) from the expert's is a deviation
 INTERVENTION_KEY = "info.intervention"  # per frame: 1 where the expert, not the learner, was in control
+SEGMENT_SOURCE = "dagger-segment"  # the source of an expert look-ahead stored as its own episode (ChunkLabels.segments)
 
 
 # ================================================================================== the aggregate store
@@ -255,10 +262,16 @@ class ChunkLabels:
     reached, not a plan: a window of them is not what a chunked learner is trained to predict. So a
     labelled state gets the expert's own chunk from there (:func:`expert_chunk`): ``horizon`` actions,
     each counted as a label, at most one such label every ``stride`` steps of a rollout (``stride`` =
-    ``horizon`` spends as many labels per rollout step as single-step labels on every step)."""
+    ``horizon`` spends as many labels per rollout step as single-step labels on every step).
+
+    ``segments``: the look-ahead is kept whole, states included (:func:`expert_segment`): a short
+    demonstration from the visited state, stored as an episode of its own, so its ``horizon`` labels
+    train a window at each of its ``horizon`` states (the later ones on the rest of the segment, the
+    steps past its end padding) instead of one window at the visited state."""
 
     horizon: int
     stride: int
+    segments: bool = False
 
 
 def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.ndarray:
@@ -283,6 +296,29 @@ def expert_chunk(env: Any, expert: Any, first: np.ndarray, horizon: int) -> np.n
     return out
 
 
+def expert_segment(env: Any, expert: Any, first: np.ndarray, target: np.ndarray | None, seed: int,
+                   horizon: int) -> Any:
+    """The expert's own next ``horizon`` steps from ``env``'s current state, recorded as collection records
+    an episode (:func:`demo.sim.rollout.rollout`): ``first`` (its action here, with its end-effector
+    ``target``), then a copy of the expert acting in the states its own actions lead to. ``env``'s state is
+    restored after (:meth:`demo.sim.env.Env.snapshot`), so the learner's rollout goes on exactly as it would
+    have; the segment is what the expert would have shown from the learner's state (:class:`ChunkLabels`)."""
+    snapshot = env.snapshot()
+    ahead = copy.deepcopy(expert)  # the rollout's expert keeps its own state (its rng, its last target)
+
+    def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
+        if t == 0:
+            return StepCommand(executed=first, label=first, ee_target=target)
+        action = np.asarray(ahead.act(env), dtype=np.float32)
+        known = None if ahead.ee_target is None else np.asarray(ahead.ee_target, np.float32)
+        return StepCommand(executed=action, label=action, ee_target=known)
+
+    try:
+        return rollout(env, seed, act, max_steps=horizon, hold_success_s=None, reset=False)
+    finally:
+        env.restore(snapshot)
+
+
 def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | Gate | None, parts: ActionParts,
                    chunks: ChunkLabels | None = None, expert: str | None = None
                    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -300,6 +336,7 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | G
     labelled: list[bool] = []
     in_control: list[bool] = []
     chunk_labels: list[np.ndarray] = []
+    segments: list[Any] = []  # chunks.segments: the expert's recorded look-aheads (demo.sim.rollout.Episode)
     since_chunk = [chunks.stride if chunks else 0]  # steps since the last chunk label
 
     def act(env: Any, frame: dict[str, np.ndarray], t: int) -> StepCommand:
@@ -311,19 +348,38 @@ def dagger_episode(env: Any, actor: Any, seed: int, beta: float, gate: float | G
         else:
             use_expert = bool(mix.random() < beta) if beta > 0 else False
             is_label = True
+        target = None if teacher.ee_target is None else np.asarray(teacher.ee_target, np.float32)
         if chunks is not None:
             is_label = is_label and since_chunk[0] >= chunks.stride
             since_chunk[0] = 1 if is_label else since_chunk[0] + 1
+            if is_label and chunks.segments:  # the label lives in the segment's episode, not on this frame
+                segments.append(expert_segment(env, teacher, label, target, seed, chunks.horizon))
+                is_label = False
             chunk_labels.append(expert_chunk(env, teacher, label, chunks.horizon) if is_label
                                 else np.full((chunks.horizon, len(label)), np.nan, np.float32))
         labelled.append(is_label)
         in_control.append(use_expert)
         executed = label if use_expert else mine
-        target = None if teacher.ee_target is None else np.asarray(teacher.ee_target, np.float32)
         return StepCommand(executed=executed, label=label, ee_target=target)
 
     episode = rollout(env, seed, act, reset=False)
-    return episode_record(episode, seed, labelled, in_control, beta, chunks=np.stack(chunk_labels) if chunks else None)
+    stacked = np.stack(chunk_labels) if chunks else None
+    data, info = episode_record(episode, seed, labelled, in_control, beta, chunks=stacked)
+    if segments:
+        info["segments"] = [segment_record(s, seed, beta, stacked.shape[1:]) for s in segments]
+        info["labels"] += sum(s.length for s in segments)  # counted on the rollout that asked for them
+    return data, info
+
+
+def segment_record(segment: Any, seed: int, beta: float, chunk_shape: tuple[int, ...]
+                   ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """An :func:`expert_segment` as the aggregate stores it: an episode of expert labels, the expert in
+    control throughout, without chunk labels (its windows' chunks are its own next actions) and with
+    ``labels`` 0 in its row (its labels are counted on the rollout it came from, whose ``labels`` they are)."""
+    ones = np.ones(segment.length, bool)
+    data, info = episode_record(segment, seed, ones, ones, beta, source=SEGMENT_SOURCE,
+                                chunks=np.full((segment.length, *chunk_shape), np.nan, np.float32))
+    return data, {**info, "labels": 0, "takeovers": 0}
 
 
 def episode_record(episode: Any, seed: int, labelled: Sequence[bool], in_control: Sequence[bool], beta: float,
@@ -554,7 +610,8 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
         stack.enter_context(store)
         if CHUNK_KEY in store.meta.features:  # the aggregate says (a resumed run's was made by its first start)
             horizon = store.meta.features[CHUNK_KEY].shape[0]
-            family = dataclasses.replace(family, chunk_labels=ChunkLabels(horizon, config.label_stride or horizon))
+            family = dataclasses.replace(family, chunk_labels=ChunkLabels(horizon, config.label_stride or horizon,
+                                                                          config.uses_segment_labels()))
         stack.enter_context(run)
         stack.enter_context(session(executor))  # one Ray (when used) for every round
         features = {k for k in store.meta.features if k not in (LABEL_KEY, INTERVENTION_KEY, CHUNK_KEY, HAS_CHUNK_KEY)}
@@ -575,7 +632,7 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
                 return demos
             rounds_col = store.column("dagger_round")
             episodes = np.union1d(demos.train_episodes, np.flatnonzero((rounds_col >= 1) & (rounds_col <= r)))
-            if config.warm_start or not config.refit_normalizers:
+            if config.warm_start or not config.refits_normalizers():
                 return demos.reload(store, episodes, demo_val)
             return prepare(round0, store, split=(episodes, demo_val))
 
@@ -617,15 +674,20 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
             if spent(r, []):
                 break  # the label budget is spent: later rounds would add nothing
             beta = config.beta_at(r)
-            existing = np.flatnonzero(store.column("dagger_round") == r)  # reused after an interruption
+            # reused after an interruption: the round's rollouts (their segments come with them)
+            existing = np.flatnonzero((store.column("dagger_round") == r) & (store.column("source") != SEGMENT_SOURCE))
             infos = [store.episode_info(int(i)) for i in existing]
             seeds = dagger_seeds(tc.seed, r, config.episodes_per_round)[len(existing):]
             episodes = family.episodes(run, store, env, r, beta, gate)
             for episode, info in round_rollouts(run, env, env_args, seeds, episodes, executor):
-                if not flagged:
-                    episode.pop(INTERVENTION_KEY)
                 info.update(task=store.meta.task.get("name", ""), dagger_round=r)
-                store.append_episode(episode, **info)
+                segments = info.pop("segments", [])
+                for frames, row in [(episode, info), *segments]:
+                    row.update(task=info["task"], dagger_round=r)
+                    if not flagged:
+                        frames.pop(INTERVENTION_KEY)
+                # the rollout and its segments in one append: an interruption keeps both or neither
+                store.append_episodes([(episode, info), *segments])
                 infos.append(info)
                 run.tick(info=f"round {r}: rollout {len(infos)}/{config.episodes_per_round}")
                 if spent(r, infos):

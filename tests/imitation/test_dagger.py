@@ -163,8 +163,27 @@ def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) 
     shutil.rmtree(source)
     summary = train_dagger(DaggerConfig(train=tc, rounds=2, episodes_per_round=1, round_steps=20), resume=True)
     assert [r["round"] for r in summary["rounds"]] == [0, 1, 2] and summary["step"] == 60 + 2 * 20
+    from demo.imitation.dagger import SEGMENT_SOURCE
+
     with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
-        assert store.column("dagger_round").tolist() == [0] * 8 + [1, 2]
+        rounds, rollouts = store.column("dagger_round"), store.column("source") != SEGMENT_SOURCE
+        assert rounds[rollouts].tolist() == [0] * 8 + [1, 2]
+        assert set(rounds[~rollouts].tolist()) == {1, 2}  # each round's segments (the default labels) beside its rollout
+
+
+class Sluggish:
+    """Half the expert's motion: a learner that lags, so the states it visits leave the expert's path."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self, seed: int, env_: object) -> None:
+        self.expert = self.env.expert()
+
+    def act(self, frame: dict) -> np.ndarray:
+        a = np.asarray(self.expert.act(self.env), dtype=np.float32).copy()
+        a[:-1] = 0.5 * (a[:-1] + frame["obs.joint_pos"])
+        return a
 
 
 def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None:
@@ -177,18 +196,9 @@ def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None
 
     env = make_env("pick")
 
-    class Sluggish:  # half the expert's motion: a learner that lags, so the states leave the expert's path
-        def reset(self, seed: int, env_: object) -> None:
-            self.expert = env.expert()
-
-        def act(self, frame: dict) -> np.ndarray:
-            a = np.asarray(self.expert.act(env), dtype=np.float32).copy()
-            a[:-1] = 0.5 * (a[:-1] + frame["obs.joint_pos"])
-            return a
-
     parts = ActionParts.of(env)
-    plain, _ = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, parts=parts)
-    data, info = dagger_episode(env, Sluggish(), seed=7, beta=0.0, gate=None, parts=parts, chunks=ChunkLabels(8, 4))
+    plain, _ = dagger_episode(env, Sluggish(env), seed=7, beta=0.0, gate=None, parts=parts)
+    data, info = dagger_episode(env, Sluggish(env), seed=7, beta=0.0, gate=None, parts=parts, chunks=ChunkLabels(8, 4))
     for key in set(plain) - {LABEL_KEY}:  # the same rollout, bit for bit; the labels are the difference
         np.testing.assert_array_equal(plain[key], data[key], err_msg=key)
     has = data[HAS_CHUNK_KEY].astype(bool)
@@ -201,13 +211,73 @@ def test_chunk_labels_are_the_experts_own_plan_and_change_nothing_else() -> None
     assert np.abs(chunks[8] - chunks[4]).max() > 0  # states differ: so do their plans
 
 
+def test_segment_labels_keep_the_experts_look_ahead_whole() -> None:
+    """Segment labels (ChunkLabels.segments): at a labelled state the expert's look-ahead is recorded as an
+    episode of its own, its frames the states the expert's own actions lead to and its actions the same as the
+    chunk label from there; the rollout itself is unchanged, holds no labels on its frames, and pays for its
+    segments' actions."""
+    from demo.imitation.dagger import SEGMENT_SOURCE, ActionParts, ChunkLabels, dagger_episode
+    from demo.sim.rollout import run_expert
+
+    env = make_env("pick")
+
+    parts = ActionParts.of(env)
+    plain, _ = dagger_episode(env, Sluggish(env), seed=7, beta=0.0, gate=None, parts=parts)
+    data, info = dagger_episode(env, Sluggish(env), seed=7, beta=0.0, gate=None, parts=parts,
+                                chunks=ChunkLabels(8, 4, segments=True))
+    for key in set(plain) - {LABEL_KEY}:  # the same rollout, bit for bit
+        np.testing.assert_array_equal(plain[key], data[key], err_msg=key)
+    assert not data[LABEL_KEY].any()
+    segments = info["segments"]
+    n = len(plain["action"])
+    assert len(segments) == (n + 3) // 4 and info["labels"] == 8 * len(segments)
+    for k, (frames, row) in enumerate(segments):
+        assert len(frames["action"]) == 8 and frames[LABEL_KEY].all() and frames["info.intervention"].all()
+        assert row["source"] == SEGMENT_SOURCE and row["labels"] == 0 and row["seed"] == 7
+        np.testing.assert_array_equal(frames["sim.state"][0], data["sim.state"][4 * k])  # starts where the learner was
+        np.testing.assert_array_equal(frames["action"][0], data["action"][4 * k])  # with the step's own label
+    expert = run_expert(env, 7, rng=np.random.default_rng([7, 2]), record=True)
+    first = segments[0][0]  # from the reset state: the start of the expert's own episode, states and actions
+    np.testing.assert_allclose(first["action"], expert.data["action"][:8], atol=1e-6)
+    np.testing.assert_allclose(first["obs.joint_pos"], expert.data["obs.joint_pos"][:8], atol=1e-6)
+
+
+def test_segment_labels_train_a_window_at_every_segment_state(demos: Path, tmp_path: Path) -> None:
+    """End to end: the segments are stored beside their rollout in one round, the budget counts their actions
+    once, and each of a segment's states starts a training window on the segment's own next actions."""
+    from demo.imitation.config import learner_config
+    from demo.imitation.dagger import SEGMENT_SOURCE
+
+    summary = dagger(demos, tmp_path / "run", chunk_labels=True, label_stride=3)  # segments: the default
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
+        rounds, source = store.column("dagger_round"), store.column("source")
+        rollouts = np.flatnonzero((rounds >= 1) & (source != SEGMENT_SOURCE))
+        segments = np.flatnonzero(source == SEGMENT_SOURCE)
+        assert len(rollouts) == 4 and len(segments) > 0 and set(rounds[segments]) == {1, 2}
+        assert store.column("labels")[segments].sum() == 0
+        assert store.column("labels")[rollouts].sum() == store.episode_lengths[segments].sum()
+        assert not store.read_episode(int(rollouts[0]))[LABEL_KEY].any()
+        data = prepare(learner_config(data=str(tmp_path / "run" / "data.zarr"), chunk=2, val_fraction=0.25), store)
+        seg = store.read_episode(int(segments[0]))
+        start = int(store.column("start")[segments[0]])
+    assert summary["expert_labels"] == summary["rounds"][0]["labels_total"] + int(store.episode_lengths[segments].sum())
+    windows = data.windows(np.array([int(segments[0])]))
+    assert len(windows) == len(seg["action"])  # a window at every state of the segment
+    _, target, pad = windows.get(np.array([start]))
+    chunk = data.action_norm.unnormalize(target.numpy())
+    if data.base is not None:
+        chunk = chunk + data.base[[start]][:, None, :]
+    np.testing.assert_allclose(chunk[0], seg["action"][:2], atol=1e-5)
+    assert not pad.numpy().any()
+
+
 def test_a_chunked_learner_trains_on_chunk_labels(demos: Path, tmp_path: Path) -> None:
     """End to end: the aggregate holds the chunk labels, the budget counts every labelled action, and the
     learner's training windows at a labelled rollout state are its chunk label."""
     from demo.imitation.config import learner_config
     from demo.training.data import CHUNK_KEY, HAS_CHUNK_KEY
 
-    summary = dagger(demos, tmp_path / "run", chunk_labels=True, label_stride=3)
+    summary = dagger(demos, tmp_path / "run", chunk_labels=True, segment_labels=False, label_stride=3)
     with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
         rollouts = np.flatnonzero(store.column("dagger_round") >= 1)
         ep = store.read_episode(int(rollouts[0]))
@@ -226,3 +296,18 @@ def test_a_chunked_learner_trains_on_chunk_labels(demos: Path, tmp_path: Path) -
         chunk = chunk + data.base[t][:, None, :]
     np.testing.assert_allclose(chunk, ep[CHUNK_KEY][has][:2], atol=1e-5)
     assert not pad.numpy().any()
+
+
+def test_normalisers_are_refit_where_the_labelled_frames_are_the_experts() -> None:
+    """Unless told: refit with segment labels (the labelled frames are the expert's own states), keep the
+    demonstrations' ranges elsewhere (under a gate, or with labels on the learner's own frames)."""
+    def config(chunk: int = 16, **kw) -> DaggerConfig:
+        return DaggerConfig(train=TrainConfig(chunk=chunk), **kw)
+
+    assert config().uses_segment_labels() and config().refits_normalizers()
+    assert not config(chunk=1).refits_normalizers()  # a single-step learner's labels are the visited states'
+    assert not config(gate="deviation:0.05").refits_normalizers()
+    assert not config(segment_labels=False).refits_normalizers()
+    assert not config(chunk_labels=False).uses_segment_labels()
+    assert not config(refit_normalizers=False).refits_normalizers()
+    assert config(gate="deviation:0.05", refit_normalizers=True).refits_normalizers()
