@@ -680,14 +680,12 @@ def train_dagger(config: DaggerConfig, *, executor: ExecutorConfig | None = None
             seeds = dagger_seeds(tc.seed, r, config.episodes_per_round)[len(existing):]
             episodes = family.episodes(run, store, env, r, beta, gate)
             for episode, info in round_rollouts(run, env, env_args, seeds, episodes, executor):
-                info.update(task=store.meta.task.get("name", ""), dagger_round=r)
-                segments = info.pop("segments", [])
-                for frames, row in [(episode, info), *segments]:
-                    row.update(task=info["task"], dagger_round=r)
+                batch = [(episode, info), *info.pop("segments", [])]  # the rollout and its segments
+                for frames, row in batch:
+                    row.update(task=store.meta.task.get("name", ""), dagger_round=r)
                     if not flagged:
                         frames.pop(INTERVENTION_KEY)
-                # the rollout and its segments in one append: an interruption keeps both or neither
-                store.append_episodes([(episode, info), *segments])
+                store.append_episodes(batch)  # in one append: an interruption keeps all of them or none
                 infos.append(info)
                 run.tick(info=f"round {r}: rollout {len(infos)}/{config.episodes_per_round}")
                 if spent(r, infos):
