@@ -12,8 +12,11 @@ def test_step_cost_figures():
     r = step_cost("reach", episodes=1, reps=1)
     us = r["us_per_step"]
     assert r["control_steps"] > 5 and r["n_substeps"] == 25
-    assert us["physics"] > 0 and us["collect"] > us["physics"]
-    assert 0 < r["ratio_collect_to_physics"] < 1
+    # Which of the two is faster is the bench's figure, not a test's: on a shared machine one
+    # round of either can be slowed at random (CI once saw physics above collect at reps=1).
+    assert all(np.isfinite(v) and v > 0 for v in (us["physics"], us["env_step"]))
+    assert r["ratio_collect_to_physics"] == pytest.approx(us["physics"] / us["collect"])
+    assert r["overhead_us_per_step"] == pytest.approx(us["collect"] - us["physics"])
 
 
 @pytest.mark.parametrize("task, options", [("pick", {}), ("avoid", {}), ("stack", {"blocks": 1, "repeat": 2})])
