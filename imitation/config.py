@@ -135,8 +135,12 @@ class DaggerConfig:
             raise DemoError("--beta", f"beta must lie in [0, 1], got {b} in round 1")
 
     def to_json(self) -> dict[str, Any]:
+        """The settings as the run uses them (``run.json``'s ``dagger``): the labelling's unset choices
+        resolved, so that a resumed run is compared with what its first start did, not with what it was told."""
         d = asdict(self)
         d["train"] = self.train.to_json()
+        d.update(chunk_labels=self.uses_chunk_labels(), segment_labels=self.uses_segment_labels(),
+                 refit_normalizers=self.refits_normalizers())
         return d
 
 

@@ -372,6 +372,9 @@ def data_paths(record: dict[str, Any]) -> list[str]:
     return [str(Path(data.get("path", "")))]
 
 
+DAGGER_EXTENDABLE = {"rounds", "max_labels", "train", "source_data"}  # the learner's own ("train"): RESUME_KEYS
+
+
 def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) -> None:
     """--resume must continue the same training: same data, policy and data-shaping options."""
     a, b = previous.get("train", {}), run["train"]
@@ -384,5 +387,11 @@ def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) ->
     if content and content != run["data"].get("content") and "dagger" not in run and not differ:  # DAgger's grows
         raise DemoError(out, "its data changed since the run started (a store replaced or appended to): cannot "
                              "resume on other data; train a new run")
+    # The DAgger family's own settings shape the aggregate as the learner's shape its batches: a resumed run
+    # with other labels, gate or beta would mix two kinds of rounds in one store. How far it goes may change.
+    if "dagger" in previous or "dagger" in run:
+        a, b = previous.get("dagger") or {}, run.get("dagger") or {}
+        differ += [k for k in sorted({*a, *b} - DAGGER_EXTENDABLE) if json.dumps(a.get(k)) != json.dumps(b.get(k))]
     if differ:
-        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps and monitoring may change)")
+        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps, --rounds, "
+                             "--max-labels and monitoring may change)")

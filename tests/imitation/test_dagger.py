@@ -169,6 +169,17 @@ def test_resume_adds_rounds_from_the_runs_own_copy(demos: Path, tmp_path: Path) 
         rounds, rollouts = store.column("dagger_round"), store.column("source") != SEGMENT_SOURCE
         assert rounds[rollouts].tolist() == [0] * 8 + [1, 2]
         assert set(rounds[~rollouts].tolist()) == {1, 2}  # each round's segments (the default labels) beside its rollout
+        episodes = store.num_episodes
+    # DAgger's own settings shape the aggregate: resuming with other labels or a gate is refused, nothing written
+    for changed in ({"segment_labels": False}, {"gate": "deviation:0.05"}, {"beta": "indicator"}):
+        with pytest.raises(DemoError, match=f"cannot resume with a different .*{next(iter(changed))}"):
+            train_dagger(DaggerConfig(train=tc, rounds=3, episodes_per_round=1, round_steps=20, **changed), resume=True)
+    # told what the first start resolved by itself (segments, normalisers refit): the same run, which goes on
+    summary = train_dagger(DaggerConfig(train=tc, rounds=3, episodes_per_round=1, round_steps=20, chunk_labels=True,
+                                        refit_normalizers=True), resume=True)
+    assert [r["round"] for r in summary["rounds"]] == [0, 1, 2, 3]
+    with EpisodeStore.open(tmp_path / "run" / "data.zarr") as store:
+        assert store.num_episodes > episodes
 
 
 class Sluggish:
