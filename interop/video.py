@@ -36,7 +36,7 @@ CODEC = "libsvtav1"  # FFmpeg's encoder name
 PIX_FMT = "yuv420p"
 CRF = 30
 GOP = 2  # frames between keyframes: cheap random access for a data loader, as LeRobot sets it
-MIN_SIDE = 4  # SVT-AV1 refuses frames narrower or lower than 4 pixels
+MIN_SIDE = 4  # SVT-AV1 refuses frames narrower or lower than 4 pixels (in the FFmpeg of PyAV 18.1.0; 18.1.1 pads them)
 TOLERANCE_S = 1e-4  # seconds between a requested timestamp and the frame that answers it (LeRobot's)
 RATE_DENOMINATOR = 1001  # frame rates are written as fractions: 30000/1001 for NTSC's 29.97
 

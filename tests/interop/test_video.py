@@ -116,5 +116,11 @@ def test_wrong_input_is_refused(tmp_path: Path) -> None:
     with pytest.raises(DemoError, match="cannot encode nosuchcodec video") as err:
         write_video(tmp_path / "x.mp4", clip(3), 20.0, VideoSettings(codec="nosuchcodec"))
     assert err.value.where == str(tmp_path / "x.mp4") and not (tmp_path / "x.mp4").exists()
-    with pytest.raises(DemoError, match="cannot encode libsvtav1 video"):
-        encode_clip(clip(3, 2, 2), 20.0)  # below SVT-AV1's minimum size (unencodable() says so first)
+    # Frames below SVT-AV1's minimum: the exporters ask unencodable() first and refuse in one line. Whether
+    # FFmpeg itself refuses depends on the build PyAV bundles (18.1.0's does, 18.1.1's pads and encodes), so
+    # encode_clip either says so in one line or writes a video.
+    assert unencodable((2, 2, 3)) == "frames of 2x2 pixels are below the encoder's 4x4 minimum"
+    try:
+        assert len(encode_clip(clip(3, 2, 2), 20.0)) > 0
+    except DemoError as e:
+        assert "cannot encode libsvtav1 video" in str(e)
