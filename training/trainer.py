@@ -372,13 +372,19 @@ def data_paths(record: dict[str, Any]) -> list[str]:
     return [str(Path(data.get("path", "")))]
 
 
-DAGGER_EXTENDABLE = {"rounds", "max_labels", "train", "source_data"}  # the learner's own ("train"): RESUME_KEYS
+# The DAgger family's record (run.json's "dagger") compared on resume, but for: how far it goes (may grow), the
+# learner's settings (RESUME_KEYS), the source (compared as "data") and the member's name (compared as "algo").
+DAGGER_UNCOMPARED = {"rounds", "max_labels", "train", "source_data", "name"}
+
+
+def differing(keys: Any, a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """The ``keys`` whose values in records ``a`` and ``b`` differ (as JSON: a tuple and its list are equal)."""
+    return [k for k in keys if json.dumps(a.get(k)) != json.dumps(b.get(k))]
 
 
 def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) -> None:
     """--resume must continue the same training: same data, policy and data-shaping options."""
-    a, b = previous.get("train", {}), run["train"]
-    differ = [k for k in RESUME_KEYS if json.dumps(a.get(k)) != json.dumps(b.get(k))]
+    differ = differing(RESUME_KEYS, previous.get("train", {}), run["train"])
     if previous.get("algo") != run["algo"] and "algo" not in differ:
         differ.insert(0, "algo")
     if data_paths(previous) != data_paths(run):
@@ -387,11 +393,12 @@ def check_resumable(out: Path, previous: dict[str, Any], run: dict[str, Any]) ->
     if content and content != run["data"].get("content") and "dagger" not in run and not differ:  # DAgger's grows
         raise DemoError(out, "its data changed since the run started (a store replaced or appended to): cannot "
                              "resume on other data; train a new run")
-    # The DAgger family's own settings shape the aggregate as the learner's shape its batches: a resumed run
-    # with other labels, gate or beta would mix two kinds of rounds in one store. How far it goes may change.
+    may_change = "--steps and monitoring"
     if "dagger" in previous or "dagger" in run:
+        # The DAgger family's own settings shape the aggregate as the learner's shape its batches: a resumed run
+        # with other labels, gate or beta would mix two kinds of rounds in one store. How far it goes may change.
         a, b = previous.get("dagger") or {}, run.get("dagger") or {}
-        differ += [k for k in sorted({*a, *b} - DAGGER_EXTENDABLE) if json.dumps(a.get(k)) != json.dumps(b.get(k))]
+        differ += differing(sorted({*a, *b} - DAGGER_UNCOMPARED), a, b)
+        may_change = "--steps, --rounds, --max-labels and monitoring"
     if differ:
-        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only --steps, --rounds, "
-                             "--max-labels and monitoring may change)")
+        raise DemoError(out, f"cannot resume with a different {', '.join(differ)} (only {may_change} may change)")
