@@ -6,12 +6,19 @@ each shows ``done/total``, elapsed and remaining time and the tick's ``fields`` 
 pairs; a tick's ``message`` is printed above the bars. The bars stay on screen when done, as a
 record of how long each stage took, and are cleared when the command fails (its error is then the
 one line it prints).
+
+Where stderr is not a terminal (a log file, a pipe, a batch job), a live bar would show nothing until it
+ends and then one line cut to 80 columns; there each stage is a plain line instead, printed at most once a
+minute while it runs and once more when the command ends.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import dataclass, field
+from datetime import timedelta
+import time
 from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, TaskID, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -28,14 +35,22 @@ def format_fields(fields: Mapping[str, Any]) -> str:
     return "  ".join(parts)
 
 
+LOG_EVERY_S = 60.0  # off a terminal: a running stage's line at most this often (seconds)
+
+
 @contextmanager
-def bars(enabled: bool = True) -> Iterator[Progress]:
+def bars(enabled: bool = True, log_every_s: float = LOG_EVERY_S) -> Iterator[Progress]:
     """A :data:`~demo.progress.Progress` callback drawing rich bars on stderr while the block runs.
 
-    ``enabled=False`` yields :func:`~demo.progress.silent` (nothing drawn, nothing printed).
+    ``enabled=False`` yields :func:`~demo.progress.silent` (nothing drawn, nothing printed). Off a terminal
+    the stages are plain lines, each at most every ``log_every_s`` seconds and once at the end.
     """
     if not enabled:
         yield silent
+        return
+    if not err_console.is_terminal:
+        with _lines(log_every_s) as progress:
+            yield progress
         return
     columns = (TextColumn("[bold]{task.description}[/]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn(), TextColumn("{task.fields[info]}"))
@@ -70,3 +85,59 @@ def bars(enabled: bool = True) -> Iterator[Progress]:
         raise
     if stages:
         live.stop()
+
+
+@dataclass
+class _Stage:
+    """What a plain line says of one stage: its counts, fields and clock."""
+
+    name: str
+    started: float = field(default_factory=time.monotonic)
+    printed: float = field(default_factory=time.monotonic)
+    done: int = 0
+    total: int | None = None
+    info: str = ""
+
+    def line(self, now: float) -> str:
+        elapsed = now - self.started
+        parts = [self.name, f"{self.done}/{'?' if self.total is None else self.total}", _clock(elapsed)]
+        if self.total and 0 < self.done < self.total:
+            parts.append(f"eta {_clock(elapsed * (self.total - self.done) / self.done)}")
+        if self.info:
+            parts.append(self.info)
+        return "  ".join(parts)
+
+
+def _clock(seconds: float) -> str:
+    return str(timedelta(seconds=int(seconds)))
+
+
+@contextmanager
+def _lines(log_every_s: float) -> Iterator[Progress]:
+    """The progress callback for a non-terminal stderr: one plain, whole line per stage now and then."""
+    stages: dict[str, _Stage] = {}
+
+    def say(line: str) -> None:
+        err_console.print(line, highlight=False, markup=False, soft_wrap=True)
+
+    def progress(tick: Tick) -> None:
+        if tick.message is not None:
+            say(tick.message)
+        if tick.done is None and tick.total is None and not tick.fields:
+            return
+        stage = stages.setdefault(tick.stage, _Stage(tick.stage))
+        if tick.total is not None:
+            stage.total = tick.total
+        if tick.done is not None:
+            stage.done = tick.done
+        if tick.fields:
+            stage.info = format_fields(tick.fields)
+        now = time.monotonic()
+        if now - stage.printed >= log_every_s:
+            stage.printed = now
+            say(stage.line(now))
+
+    yield progress  # on an error nothing more is printed: its one line follows what was logged
+    now = time.monotonic()
+    for stage in stages.values():
+        say(stage.line(now))
