@@ -9,14 +9,14 @@ one line it prints).
 
 Where stderr is not a terminal (a log file, a pipe, a batch job), a live bar would show nothing until it
 ends and then one line cut to 80 columns; there each stage is a plain line instead, printed at most once a
-minute while it runs and once more when the command ends.
+minute while it runs and once more when the command ends, unless its last line already said how it ended.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import timedelta
 import time
 from typing import Any
@@ -89,17 +89,23 @@ def bars(enabled: bool = True, log_every_s: float = LOG_EVERY_S) -> Iterator[Pro
 
 @dataclass
 class _Stage:
-    """What a plain line says of one stage: its counts, fields and clock."""
+    """What a plain line says of one stage: its counts, fields and clock (stopped when done reaches total)."""
 
     name: str
-    started: float = field(default_factory=time.monotonic)
-    printed: float = field(default_factory=time.monotonic)
+    started: float  # time.monotonic() of its first tick (seconds)
+    printed: float  # ... and of its last line
+    said: tuple[int, int | None, str] | None = None  # the counts and fields of the last line printed
+    ended: float | None = None  # when done reached total
     done: int = 0
     total: int | None = None
     info: str = ""
 
+    def state(self) -> tuple[int, int | None, str]:
+        return self.done, self.total, self.info
+
     def line(self, now: float) -> str:
-        elapsed = now - self.started
+        self.said = self.state()
+        elapsed = (now if self.ended is None else self.ended) - self.started
         parts = [self.name, f"{self.done}/{'?' if self.total is None else self.total}", _clock(elapsed)]
         if self.total and 0 < self.done < self.total:
             parts.append(f"eta {_clock(elapsed * (self.total - self.done) / self.done)}")
@@ -125,14 +131,16 @@ def _lines(log_every_s: float) -> Iterator[Progress]:
             say(tick.message)
         if tick.done is None and tick.total is None and not tick.fields:
             return
-        stage = stages.setdefault(tick.stage, _Stage(tick.stage))
+        now = time.monotonic()
+        stage = stages.setdefault(tick.stage, _Stage(tick.stage, started=now, printed=now))
         if tick.total is not None:
             stage.total = tick.total
         if tick.done is not None:
             stage.done = tick.done
         if tick.fields:
             stage.info = format_fields(tick.fields)
-        now = time.monotonic()
+        if stage.total is not None and stage.done >= stage.total and stage.ended is None:
+            stage.ended = now
         if now - stage.printed >= log_every_s:
             stage.printed = now
             say(stage.line(now))
@@ -140,4 +148,5 @@ def _lines(log_every_s: float) -> Iterator[Progress]:
     yield progress  # on an error nothing more is printed: its one line follows what was logged
     now = time.monotonic()
     for stage in stages.values():
-        say(stage.line(now))
+        if stage.state() != stage.said:  # a line that would repeat the last one is left out
+            say(stage.line(now))

@@ -45,17 +45,31 @@ def test_bars_are_cleared_on_error(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_off_a_terminal_a_stage_is_a_whole_line_now_and_then(capsys: pytest.CaptureFixture[str]) -> None:
     """A log file gets plain lines, never a bar cut to 80 columns: with ``log_every_s=0`` one per tick, each
-    with the counts, the elapsed time, an estimate of the time left and every field, and one more at the end."""
+    with the counts, the elapsed time, an estimate of the time left and every field; at the end one more per stage
+    whose last line is out of date, none repeating it."""
     fields = {"loss": 0.5, "val": 0.25, "success": "-", "samples/s": 259.0, "info": "x" * 100}
     with bars(log_every_s=0.0) as progress:
         progress(Tick("train dagger", 1, 4, fields))
         progress(Tick("train dagger", 2, 4, fields))
+        progress(Tick("evaluate", 1, 2))
     lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 3  # two while it ran, one at the end
+    assert len(lines) == 3  # one per tick while it ran, none at the end: each stage's last line is current
     assert lines[0].startswith("train dagger  1/4  0:00:00  eta 0:00:00  loss 0.5  val 0.25  success -")
     assert lines[1].startswith("train dagger  2/4") and lines[0].endswith("x" * 100)
-    assert lines[2] == lines[1]  # the end: the stage as it stood
+    assert lines[2] == "evaluate  1/2  0:00:00  eta 0:00:00"
     with bars() as progress:  # the default: a minute between lines, so a short stage is one line, at the end
         progress(Tick("collect pick", 1, 2))
         progress(Tick("collect pick", 2, 2, message="episode 2 ok"))
     assert capsys.readouterr().err.splitlines() == ["episode 2 ok", "collect pick  2/2  0:00:00"]
+
+
+def test_off_a_terminal_a_finished_stage_keeps_its_time(capsys: pytest.CaptureFixture[str],
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A stage that finished before the command ended reports the time it took, not the command's: its clock
+    stops when done reaches total (a collection's line, printed after the store was written)."""
+    clock = iter([0.0, 90.0, 200.0])  # the stage's first tick, its last (90 s later), the command's end
+    monkeypatch.setattr("demo.cli.progress.time.monotonic", lambda: next(clock))
+    with bars() as progress:
+        progress(Tick("collect pick", 1, 2))
+        progress(Tick("collect pick", 2, 2))
+    assert capsys.readouterr().err.splitlines() == ["collect pick  2/2  0:01:30"]
