@@ -188,16 +188,22 @@ def collect_config(c: SuiteConfig, task: str) -> CollectConfig:
                          task_options=options)
 
 
+def finished(done: Path, key: dict[str, Any]) -> dict[str, Any] | None:
+    """The result written at ``done`` when it was made with the configuration ``key``, else None."""
+    if not done.is_file():
+        return None
+    previous = json.loads(done.read_text())
+    return previous if previous.get("configuration") == key else None
+
+
 def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str, Any]:
     """Collect, train and evaluate one task (reused when its result is there for the same configuration)."""
     folder = Path(c.out) / task
     done = folder / "result.json"
     # What a task's result depends on: MT50 reuses MT10's tasks finished in the same --out.
     key = {k: v for k, v in asdict(c).items() if k not in ("suite", "out", "tasks", "workers")}
-    if done.is_file():
-        previous = json.loads(done.read_text())
-        if previous.get("configuration") == key:
-            return previous
+    if (previous := finished(done, key)) is not None:
+        return previous
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     log(f"{task}: collect {c.demos}")
@@ -241,10 +247,8 @@ def run_one_policy(c: SuiteConfig, log: Callable[[str], None]) -> dict[str, Any]
     tuned = one_policy_bc(c)
     key = json.loads(json.dumps({**{k: v for k, v in asdict(c).items() if k not in ("out", "tasks", "workers")},
                                  "bc": tuned}))
-    if done.is_file():
-        previous = json.loads(done.read_text())
-        if previous.get("configuration") == key:
-            return previous
+    if (previous := finished(done, key)) is not None:
+        return previous
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     log(f"{name}: collect {c.demos} per task")
