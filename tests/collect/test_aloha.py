@@ -120,6 +120,18 @@ def test_the_aloha_suite_needs_gym_alohas_interpreter(tmp_path: Path, one_line_e
     one_line_error(["bench", "suite", "aloha", "--out", str(tmp_path / "runs")], "--python", "gym-aloha==0.1.5")
 
 
+def test_a_task_trains_with_its_own_chunk_where_the_suite_measured_one() -> None:
+    """gym-aloha's insertion trains ACT on 50-step chunks (measured better there), transfer cube on ACT's default;
+    --chunk overrides both, another --algo gets the suite's chunk, not one measured for ACT."""
+    from demo.experiments.suite import SuiteConfig, task_chunk
+
+    aloha = SuiteConfig(suite="aloha", python="python")
+    assert task_chunk(aloha, "insertion") == 50 and task_chunk(aloha, "transfer_cube") is None
+    assert task_chunk(SuiteConfig(suite="aloha", chunk=16), "insertion") == 16
+    assert task_chunk(SuiteConfig(suite="aloha", algo="diffusion"), "insertion") is None
+    assert task_chunk(SuiteConfig(), "reach-v3") == 1  # Meta-World: single-step
+
+
 def scene_episode(env: Any, task: str, seed: int, steps: int = 300) -> tuple[list[float], dict[str, np.ndarray]]:
     from demo.collect.aloha import AlohaExpert
 

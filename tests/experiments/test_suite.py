@@ -147,15 +147,3 @@ def test_one_policy_from_the_camera_records_the_state_it_is_trained_to_predict()
     assert "aux_target" not in one_policy_bc(SuiteConfig(one_policy=True))
     mt50 = one_policy_bc(SuiteConfig(suite="metaworld-mt50", one_policy=True, camera="corner@64x64"))
     assert mt50["steps"] == 40000 and mt50["aux_target"] == "obs.env_state"  # MT50's own steps kept
-
-
-def test_a_task_trains_with_its_own_chunk_where_the_suite_measured_one() -> None:
-    """gym-aloha's insertion trains ACT on 50-step chunks (measured better there), transfer cube on ACT's default;
-    --chunk overrides both, another --algo gets the suite's chunk, not one measured for ACT."""
-    from demo.experiments.suite import SuiteConfig, task_chunk
-
-    aloha = SuiteConfig(suite="aloha", python="python")
-    assert task_chunk(aloha, "insertion") == 50 and task_chunk(aloha, "transfer_cube") is None
-    assert task_chunk(SuiteConfig(suite="aloha", chunk=16), "insertion") == 16
-    assert task_chunk(SuiteConfig(suite="aloha", algo="diffusion"), "insertion") is None
-    assert task_chunk(SuiteConfig(), "reach-v3") == 1  # Meta-World: single-step
