@@ -213,7 +213,9 @@ def run_task(c: SuiteConfig, task: str, log: Callable[[str], None]) -> dict[str,
     done = folder / "result.json"
     # What a task's result depends on: MT50 reuses MT10's tasks finished in the same --out.
     key = {k: v for k, v in asdict(c).items() if k not in ("suite", "out", "tasks", "workers")}
-    if task in SUITES[c.suite].chunks:  # the task's own chunk, as the suite resolves it
+    # A task with its own chunk records the chunk it resolves to, so a result made with another is trained again;
+    # the others keep the key they had (their chunk follows from the configuration), and their results stay reused.
+    if task in SUITES[c.suite].chunks:
         key["chunk"] = task_chunk(c, task)
     if (previous := finished(done, key)) is not None:
         return previous
